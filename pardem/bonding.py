@@ -1,0 +1,77 @@
+"""Creating beam bonds between element pairs: geometry, anisotropic properties, damping.
+
+The bond's modulus and radius follow the anisotropy law of ``BeamMaterial`` in the LRT ``frame``
+(PHYSICS.md sections 2 and 3). Reference vectors are stored in each end's body frame at creation.
+"""
+from dataclasses import dataclass
+
+import numpy as np
+
+from pardem.physics import anisotropy
+from pardem.state import Bonds
+
+
+@dataclass(frozen=True)
+class BeamMaterial:
+    """young [Pa] and radius_ratio (r = ratio * mean(R1, R2)): scalar or (L, R, T) values.
+
+    poisson : bond Poisson ratio, G = E / (2 (1 + poisson)); damping : ratio zeta of each mode.
+    """
+    young: tuple
+    radius_ratio: tuple
+    poisson: float
+    damping: float
+    law: str = "TOR"
+
+
+def _reference_normal(n):
+    """A unit vector normal to each unit row of ``n``, built from the least aligned axis."""
+    axis = np.zeros_like(n)
+    axis[np.arange(len(n)), np.argmin(np.abs(n), axis=1)] = 1.0
+    p = np.cross(n, axis)
+    return p / np.linalg.norm(p, axis=1)[:, None]
+
+
+def make_bonds(elements, pairs, material, frame, first_gid=0):
+    """Beam bonds joining rows ``pairs`` [n, 2] of ``elements`` (ends ordered by element gid)."""
+    e = elements
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    swap = e.gid[pairs[:, 0]] > e.gid[pairs[:, 1]]
+    pairs = np.where(swap[:, None], pairs[:, ::-1], pairs)
+    # bonds in order of their first end, then second: the force scatter then walks memory forward
+    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    i, j = pairs[:, 0], pairs[:, 1]
+    d = e.x[j] - e.x[i]
+    L0 = np.linalg.norm(d, axis=1)
+    if np.any(L0 <= 0.0):
+        raise ValueError("a bond joins two elements at the same position")
+    n = d / L0[:, None]
+    young = anisotropy.evaluate(material.law, n, frame, material.young)
+    r_adim = anisotropy.evaluate(material.law, n, frame, material.radius_ratio)
+    r = r_adim * 0.5 * (e.radius[i] + e.radius[j])
+    S = np.pi * r**2
+    I = np.pi * r**4 / 4.0
+    I0 = np.pi * r**4 / 2.0
+    G = young / (2.0 * (1.0 + material.poisson))
+    ka = young * S / L0
+    kb = young * I
+    kt = G * I0 / L0
+    zeta = material.damping
+    m_red = e.mass[i] * e.mass[j] / (e.mass[i] + e.mass[j])
+    i_red = e.inertia[i] * e.inertia[j] / (e.inertia[i] + e.inertia[j])
+    # tau = c / k = 2 zeta sqrt(m*/k); bending uses the end-rotation stiffness 4EI/L0
+    tau_a = 2.0 * zeta * np.sqrt(m_red / ka)
+    tau_b = 2.0 * zeta * np.sqrt(i_red / (4.0 * kb / L0))
+    tau_t = 2.0 * zeta * np.sqrt(i_red / kt)
+    p = _reference_normal(n)
+    # body-frame copies: R^T v for each end
+    to_body = lambda rows, vec: np.einsum("kji,kj->ki", e.rot[rows], vec)
+    nb = len(i)
+    return Bonds(
+        i=i.astype(np.int32), j=j.astype(np.int32),
+        gid=np.arange(first_gid, first_gid + nb, dtype=np.int64),
+        gid_i=e.gid[i].copy(), gid_j=e.gid[j].copy(),
+        L0=L0, ka=ka, kb=kb, kt=kt, tau_a=tau_a, tau_b=tau_b, tau_t=tau_t,
+        u1=to_body(i, n), p1=to_body(i, p), u2=to_body(j, n), p2=to_body(j, p),
+        young=young, radius=r, damped=bool(zeta > 0.0),
+    )

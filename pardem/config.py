@@ -1,0 +1,215 @@
+"""Input decks: TOML files plus ``--set section.key=value`` overrides, checked against a schema.
+
+Every field is checked before any work starts. A bad field raises ``DeckError`` whose message is one
+line naming the field and the values it allows; drivers print it and exit with status 2.
+"""
+import copy
+import math
+import tomllib
+from dataclasses import dataclass
+from typing import Any, Callable
+
+
+class DeckError(ValueError):
+    """A deck field is unknown, of the wrong type or out of range."""
+
+
+@dataclass(frozen=True)
+class Field:
+    """One deck key: default value, a checker returning the normalised value, and its allowed values."""
+    default: Any
+    check: Callable[[str, Any], Any]
+    doc: str
+
+
+def _is_number(v):
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def number(lo=None, hi=None, lo_open=True, hi_open=True, integer=False):
+    """Checker for a number in an interval; ``None`` bounds are infinite."""
+    lb = "(" if lo_open or lo is None else "["
+    rb = ")" if hi_open or hi is None else "]"
+    kind = "an integer" if integer else "a number"
+    allowed = f"{kind} in {lb}{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}{rb}"
+
+    def check(name, v):
+        if integer and not (isinstance(v, int) and not isinstance(v, bool)):
+            raise DeckError(f"{name} = {v!r}: expected {allowed}")
+        if not _is_number(v):
+            raise DeckError(f"{name} = {v!r}: expected {allowed}")
+        bad_lo = lo is not None and (v <= lo if lo_open else v < lo)
+        bad_hi = hi is not None and (v >= hi if hi_open else v > hi)
+        if bad_lo or bad_hi:
+            raise DeckError(f"{name} = {v!r} is out of range: expected {allowed}")
+        return int(v) if integer else float(v)
+    check.allowed = allowed
+    return check
+
+
+def positive():
+    return number(lo=0.0)
+
+
+def number_or_triple(inner):
+    """Checker for a number or a list of three numbers (L, R, T values), each passing ``inner``."""
+    def check(name, v):
+        if isinstance(v, list):
+            if len(v) != 3:
+                raise DeckError(f"{name} = {v!r}: expected one number or a list of 3 ({inner.allowed})")
+            return tuple(inner(f"{name}[{k}]", x) for k, x in enumerate(v))
+        return inner(name, v)
+    return check
+
+
+def triple(inner):
+    def check(name, v):
+        if not isinstance(v, list) or len(v) != 3:
+            raise DeckError(f"{name} = {v!r}: expected a list of 3 numbers, each {inner.allowed}")
+        return tuple(inner(f"{name}[{k}]", x) for k, x in enumerate(v))
+    return check
+
+
+def choice(*options, case_sensitive=False):
+    def check(name, v):
+        if isinstance(v, str):
+            for o in options:
+                if v == o or (not case_sensitive and v.lower() == o.lower()):
+                    return o
+        raise DeckError(f"{name} = {v!r}: expected one of {', '.join(repr(o) for o in options)}")
+    return check
+
+
+def auto_or(inner):
+    """Checker for the string "auto" or a value passing ``inner``."""
+    def check(name, v):
+        if v == "auto":
+            return "auto"
+        try:
+            return inner(name, v)
+        except DeckError as err:
+            raise DeckError(f"{err} or \"auto\"") from None
+    return check
+
+
+def optional(inner):
+    """Checker accepting ``0`` / missing as 'not set' (None) for optional integer counts."""
+    def check(name, v):
+        if v is None or v == 0:
+            return None
+        return inner(name, v)
+    return check
+
+
+def boolean(name, v):
+    if not isinstance(v, bool):
+        raise DeckError(f"{name} = {v!r}: expected true or false")
+    return v
+
+
+# The compress driver's deck. Defaults are the issue's default case (PHYSICS.md W study cube).
+COMPRESS_SCHEMA = {
+    "domain": {
+        "kind": Field("ordered", choice("ordered"), "domain builder"),
+        "box": Field([0.01, 0.01, 0.01], triple(positive()), "box edge lengths [m]"),
+        "radius": Field(0.2381e-3, positive(), "element radius [m]"),
+        "density": Field(1000.0, positive(), "element density [kg/m^3]"),
+        "tilt_deg": Field(0.0, number(-90.0, 90.0, lo_open=False, hi_open=False),
+                          "tilt of the lattice and LRT frame about T (z) [deg]"),
+    },
+    "bonds": {
+        "young": Field(100e6, number_or_triple(positive()), "bond Young's modulus, or [E_L, E_R, E_T] [Pa]"),
+        "law": Field("TOR", choice("TOR", "hankinson", "linear", "spherical"), "anisotropy law"),
+        "radius_ratio": Field(1.0, number_or_triple(positive()),
+                              "bond radius / mean element radius, or [r_L, r_R, r_T]"),
+        "poisson": Field(0.3, number(-1.0, 0.5), "bond Poisson ratio"),
+        "damping": Field(0.2, number(0.0, 1.0, lo_open=False, hi_open=False), "bond damping ratio"),
+    },
+    "plates": {
+        "stiffness": Field("auto", auto_or(positive()),
+                           "element-plate stiffness [N/m]; auto = mean axial bond stiffness"),
+    },
+    "loading": {
+        "axis": Field("x", choice("x", "y", "z"), "loading axis"),
+        "strain": Field(0.005, number(0.0, 0.5), "nominal strain imposed by the moving plate"),
+        "plate_speed": Field(0.5, positive(), "moving plate speed [m/s]"),
+        "ramp_time": Field("auto", auto_or(number(lo=0.0, lo_open=False)),
+                           "time [s] over which the plate speed rises smoothly from 0; auto = 4 L / c "
+                           "(two periods of the slowest axial mode, c from the bonds along the "
+                           "axis), at most the time to cover half the travel"),
+    },
+    "run": {
+        "dt": Field("auto", auto_or(positive()), "time step [s], or auto = dt_fraction * critical step"),
+        "dt_fraction": Field(0.5, number(0.0, 1.0, hi_open=False), "fraction of the critical step when dt = auto"),
+        "progress_seconds": Field(5.0, positive(), "seconds between progress lines (rank 0)"),
+    },
+    "output": {
+        "series_every": Field(0, optional(number(lo=0, integer=True)),
+                              "steps between series samples; 0 = about 200 samples per run"),
+    },
+}
+
+
+def defaults(schema):
+    return {s: {k: copy.deepcopy(f.default) for k, f in fields.items()} for s, fields in schema.items()}
+
+
+def parse_override(text):
+    """``section.key=value`` -> (section, key, value); value is read as TOML, else as a string."""
+    if "=" not in text or "." not in text.split("=", 1)[0]:
+        raise DeckError(f"--set {text!r}: expected section.key=value")
+    path, raw = text.split("=", 1)
+    section, key = path.strip().split(".", 1)
+    try:
+        value = tomllib.loads(f"v = {raw.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    return section, key, value
+
+
+def load_deck(schema, path=None, overrides=()):
+    """Read ``path`` (TOML, may be None), apply overrides, check every field; returns a nested dict."""
+    raw = {}
+    if path is not None:
+        try:
+            with open(path, "rb") as fh:
+                raw = tomllib.load(fh)
+        except FileNotFoundError:
+            raise DeckError(f"--config {path}: no such file") from None
+        except tomllib.TOMLDecodeError as err:
+            raise DeckError(f"--config {path}: not valid TOML ({err})") from None
+    for text in overrides:
+        section, key, value = parse_override(text)
+        raw.setdefault(section, {})
+        if not isinstance(raw[section], dict):
+            raise DeckError(f"[{section}] must be a table")
+        raw[section][key] = value
+    return check_deck(schema, raw)
+
+
+def check_deck(schema, raw):
+    deck = defaults(schema)
+    for section, table in raw.items():
+        if section not in schema:
+            raise DeckError(f"unknown section [{section}]: allowed sections are {', '.join(schema)}")
+        if not isinstance(table, dict):
+            raise DeckError(f"[{section}] must be a table of keys")
+        for key, value in table.items():
+            if key not in schema[section]:
+                raise DeckError(f"unknown key {section}.{key}: allowed keys in [{section}] are "
+                                f"{', '.join(schema[section])}")
+            deck[section][key] = value
+    for section, fields in schema.items():
+        for key, f in fields.items():
+            deck[section][key] = f.check(f"{section}.{key}", deck[section][key])
+    return deck
+
+
+def describe(schema):
+    """Human-readable list of the deck keys with their defaults (for ``--help``)."""
+    lines = []
+    for section, fields in schema.items():
+        lines.append(f"[{section}]")
+        for key, f in fields.items():
+            lines.append(f"  {key} = {f.default!r}   # {f.doc}")
+    return "\n".join(lines)

@@ -1,0 +1,1 @@
+"""Domain builders: element positions, radii and the pairs to bond."""

@@ -1,0 +1,1 @@
+"""The I/O layer: every file pardem writes or reads goes through here."""

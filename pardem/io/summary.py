@@ -1,0 +1,25 @@
+"""The run summary as JSON, written atomically (temporary name, then rename)."""
+import json
+import os
+
+import numpy as np
+
+
+def _plain(obj):
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    return obj
+
+
+def write_json(path, data):
+    tmp = f"{path}.tmp"
+    with open(tmp, "w") as fh:
+        json.dump(_plain(data), fh, indent=2, allow_nan=True)
+        fh.write("\n")
+    os.replace(tmp, path)

@@ -1,0 +1,1 @@
+"""The parallel layer: the only place that talks MPI."""

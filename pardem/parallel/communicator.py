@@ -1,0 +1,64 @@
+"""MPI communicator wrapper: collectives used by the engine, and all-ranks abort on failure.
+
+Everything above this layer calls these verbs and never mpi4py directly, so a run on one process
+without ``mpiexec`` works the same way (MPI singleton).
+"""
+import sys
+import traceback
+
+import numpy as np
+
+
+class Communicator:
+    """Thin wrapper over an mpi4py communicator (default ``COMM_WORLD``)."""
+
+    def __init__(self, comm=None):
+        from mpi4py import MPI
+        self._MPI = MPI
+        self.comm = MPI.COMM_WORLD if comm is None else comm
+        self.rank = self.comm.Get_rank()
+        self.size = self.comm.Get_size()
+
+    @property
+    def is_root(self) -> bool:
+        return self.rank == 0
+
+    def sum(self, values):
+        """Element-wise sum over ranks of a float64 array (or scalar); same result on every rank."""
+        a = np.array(values, dtype=np.float64)   # a copy, C-contiguous, 0-d for a scalar
+        if self.size == 1:
+            return a
+        out = np.empty_like(a)
+        self.comm.Allreduce(a, out, op=self._MPI.SUM)
+        return out
+
+    def min(self, value):
+        return self.comm.allreduce(value, op=self._MPI.MIN) if self.size > 1 else value
+
+    def max(self, value):
+        return self.comm.allreduce(value, op=self._MPI.MAX) if self.size > 1 else value
+
+    def any(self, flag: bool) -> bool:
+        return bool(self.comm.allreduce(bool(flag), op=self._MPI.LOR)) if self.size > 1 else bool(flag)
+
+    def bcast(self, obj, root=0):
+        return self.comm.bcast(obj, root=root) if self.size > 1 else obj
+
+    def barrier(self):
+        if self.size > 1:
+            self.comm.Barrier()
+
+    def abort(self, code=1):
+        """End every rank of the job now (used when one rank fails and the others may be waiting)."""
+        sys.stdout.flush()
+        sys.stderr.flush()
+        self.comm.Abort(code)
+
+
+def report_and_abort(comm, exc, code=1):
+    """Print an unexpected exception of this rank once, then abort all ranks (never hangs)."""
+    sys.stderr.write(f"pardem: rank {comm.rank}: unexpected error:\n")
+    traceback.print_exception(exc, file=sys.stderr)
+    if comm.size > 1:
+        comm.abort(code)
+    raise SystemExit(code)

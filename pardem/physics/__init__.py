@@ -1,0 +1,1 @@
+"""Physics kernels: pure functions over arrays (Numba), free of MPI and files."""

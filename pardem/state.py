@@ -1,0 +1,200 @@
+"""Per-rank structure-of-arrays state: elements and bonds.
+
+Layout convention shared by every kernel and by the parallel layer:
+
+* element rows ``[0, n_owned)`` are owned by this rank, rows ``[n_owned, n_total)`` are ghost copies;
+* every element and bond carries a global id (``gid``) that never changes during a run;
+* a bond refers to its ends through local row indices ``i, j`` that are rebuilt from the end
+  global ids ``gid_i, gid_j`` (``Bonds.relink``) whenever rows move (migration, ghost rebuild).
+
+Units are SI throughout: m, kg, s, N, N m.
+"""
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+from numba import njit
+
+from pardem.physics.quaternion import quat_to_matrix_into
+
+# Element flag bits.
+FLAG_NEAR_PLATE = np.uint8(1)   # touches a plate at the start: left out of the strain fit
+
+
+@dataclass
+class Elements:
+    """Spheres with 6 degrees of freedom; arrays of shape ``[n_total, ...]``.
+
+    x, v, w : position [m], velocity [m/s], angular velocity (world frame) [rad/s]
+    q : orientation quaternion (w, x, y, z), body -> world; ``rot`` caches its matrix
+    f, t : force [N] and torque about the centre [N m] accumulated in the current step
+    radius [m], mass [kg], inertia [kg m^2] (2/5 m R^2), inv_mass, inv_inertia
+    x0 : reference position of the strain fit [m]; gid : global id; flags : FLAG_* bits
+    """
+    x: np.ndarray
+    v: np.ndarray
+    w: np.ndarray
+    q: np.ndarray
+    rot: np.ndarray
+    f: np.ndarray
+    t: np.ndarray
+    radius: np.ndarray
+    mass: np.ndarray
+    inertia: np.ndarray
+    inv_mass: np.ndarray
+    inv_inertia: np.ndarray
+    x0: np.ndarray
+    gid: np.ndarray
+    flags: np.ndarray
+    n_owned: int = 0
+
+    @property
+    def n_total(self) -> int:
+        return self.x.shape[0]
+
+    @classmethod
+    def from_spheres(cls, positions, radii, density, gids=None):
+        """Owned elements at rest, identity orientation, from centres [n, 3] and radii [n]."""
+        x = np.ascontiguousarray(positions, dtype=np.float64)
+        n = x.shape[0]
+        radius = np.ascontiguousarray(np.broadcast_to(radii, (n,)), dtype=np.float64).copy()
+        mass = density * 4.0 / 3.0 * np.pi * radius**3
+        inertia = 0.4 * mass * radius**2
+        q = np.zeros((n, 4))
+        q[:, 0] = 1.0
+        rot = np.zeros((n, 3, 3))
+        rot[:, 0, 0] = rot[:, 1, 1] = rot[:, 2, 2] = 1.0
+        if gids is None:
+            gids = np.arange(n, dtype=np.int64)
+        return cls(x=x.copy(), v=np.zeros((n, 3)), w=np.zeros((n, 3)), q=q, rot=rot,
+                   f=np.zeros((n, 3)), t=np.zeros((n, 3)), radius=radius, mass=mass,
+                   inertia=inertia, inv_mass=1.0 / mass, inv_inertia=1.0 / inertia,
+                   x0=x.copy(), gid=np.asarray(gids, dtype=np.int64).copy(),
+                   flags=np.zeros(n, dtype=np.uint8), n_owned=n)
+
+    def refresh_rotations(self, start=0, stop=None):
+        """Recompute the cached rotation matrices of rows ``[start, stop)`` from ``q``."""
+        _refresh_rot(self.q, self.rot, start, self.n_total if stop is None else stop)
+
+    def nbytes(self) -> int:
+        return sum(getattr(self, f.name).nbytes for f in fields(self) if f.name != "n_owned")
+
+
+@dataclass
+class Bonds:
+    """Euler-Bernoulli beam bonds; arrays of shape ``[n_bonds, ...]``.
+
+    i, j : local rows of the two ends (rebuilt from gid_i, gid_j); gid_i < gid_j always, so that
+        any rank holding a bond computes it in the same orientation.
+    gid : bond global id.
+    L0 : length at creation [m]; ka = E S / L0 [N/m]; kb = E I [N m^2]; kt = G I0 / L0 [N m/rad].
+    tau_a, tau_b, tau_t : damping time constants c/k [s] of the axial, bending and twist modes.
+    u1, p1, u2, p2 : bond axis (1 -> 2) and a reference vector normal to it at creation,
+        stored in the body frame of end 1 (u1, p1) and end 2 (u2, p2).
+    young [Pa], radius [m] : the bond's modulus and radius, kept for output and diagnostics.
+    damped : False when every tau is zero (the force loop then skips the damping terms).
+    """
+    i: np.ndarray
+    j: np.ndarray
+    gid: np.ndarray
+    gid_i: np.ndarray
+    gid_j: np.ndarray
+    L0: np.ndarray
+    ka: np.ndarray
+    kb: np.ndarray
+    kt: np.ndarray
+    tau_a: np.ndarray
+    tau_b: np.ndarray
+    tau_t: np.ndarray
+    u1: np.ndarray
+    p1: np.ndarray
+    u2: np.ndarray
+    p2: np.ndarray
+    young: np.ndarray
+    radius: np.ndarray
+    damped: bool = True
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return self.i.shape[0]
+
+    def relink(self, element_gids):
+        """Rebuild ``i, j`` from the end global ids and the rows' ``element_gids``.
+
+        Raises KeyError naming a missing end, which means the rank lacks an element it needs.
+        """
+        order = np.argsort(element_gids, kind="stable")
+        sorted_g = element_gids[order]
+        for ends, out in ((self.gid_i, self.i), (self.gid_j, self.j)):
+            pos = np.searchsorted(sorted_g, ends)
+            pos_c = np.minimum(pos, max(len(sorted_g) - 1, 0))
+            bad = (pos >= len(sorted_g)) | (sorted_g[pos_c] != ends)
+            if np.any(bad):
+                raise KeyError(f"bond end gid {int(ends[bad][0])} is not held by this rank")
+            out[:] = order[pos_c]
+
+    def nbytes(self) -> int:
+        return sum(getattr(self, f.name).nbytes for f in fields(self) if f.name not in ("extra", "damped"))
+
+
+
+@njit(cache=True, error_model="numpy")
+def _refresh_rot(q, rot, start, stop):
+    for k in range(start, stop):
+        quat_to_matrix_into(q[k], rot[k])
+
+
+@dataclass
+class Plates:
+    """Rigid plates normal to ``axis``: row 0 fixed at the low end, row 1 moving at the high end.
+
+    positions [m] along the axis, sides = inward normal signs (+1, -1), stiffness [N/m] of the
+    element-plate repulsion; force_local = this rank's share of the force on each plate from the
+    last step [N], positive in compression. The moving plate's speed rises from 0 to ``speed``
+    [m/s] along a half cosine over ``ramp_time`` [s] (no velocity jump, so no stress wave is
+    launched), then stays constant; its position is a closed-form function of time.
+    """
+    axis: int
+    positions: np.ndarray
+    sides: np.ndarray
+    stiffness: np.ndarray
+    initial: np.ndarray
+    force_local: np.ndarray
+    speed: float = 0.0
+    ramp_time: float = 0.0
+
+    @classmethod
+    def pair(cls, axis, low, high, speed, stiffness, ramp_time=0.0):
+        """A fixed plate at ``low`` and one at ``high`` moving towards it at ``speed`` [m/s]."""
+        pos = np.array([low, high], dtype=np.float64)
+        return cls(axis=int(axis), positions=pos, sides=np.array([1.0, -1.0]),
+                   stiffness=np.full(2, float(stiffness)), initial=pos.copy(),
+                   force_local=np.zeros(2), speed=float(speed), ramp_time=float(ramp_time))
+
+    def travel(self, time):
+        """Distance [m] the moving plate has covered at ``time`` [s]."""
+        T, v = self.ramp_time, self.speed
+        if time >= T:
+            return v * (time - 0.5 * T)
+        return 0.5 * v * (time - T / np.pi * np.sin(np.pi * time / T))
+
+    def time_to_travel(self, distance):
+        """Inverse of ``travel`` [s]."""
+        T, v = self.ramp_time, self.speed
+        if distance >= 0.5 * v * T:
+            return distance / v + 0.5 * T
+        lo, hi = 0.0, T
+        for _ in range(100):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if self.travel(mid) < distance else (lo, mid)
+        return hi
+
+    def move_to(self, time):
+        self.positions[1] = self.initial[1] - self.travel(time)
+
+    def displacement(self) -> float:
+        """How far the moving plate has travelled towards the fixed one [m]."""
+        return float(self.initial[1] - self.positions[1])
+
+    def gap(self) -> float:
+        return float(self.positions[1] - self.positions[0])
