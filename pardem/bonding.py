@@ -32,14 +32,20 @@ def _reference_normal(n):
     return p / np.linalg.norm(p, axis=1)[:, None]
 
 
-def make_bonds(elements, pairs, material, frame, first_gid=0):
-    """Beam bonds joining rows ``pairs`` [n, 2] of ``elements`` (ends ordered by element gid)."""
+def make_bonds(elements, pairs, material, frame, gids=None):
+    """Beam bonds joining rows ``pairs`` [n, 2] of ``elements``.
+
+    Ends are ordered by element gid and bonds sorted by (gid_i, gid_j). ``gids`` [n] are the bonds'
+    global ids in the order of ``pairs`` (default ``0..n-1`` in sorted order).
+    """
     e = elements
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     swap = e.gid[pairs[:, 0]] > e.gid[pairs[:, 1]]
     pairs = np.where(swap[:, None], pairs[:, ::-1], pairs)
-    # bonds in order of their first end, then second: the force scatter then walks memory forward
-    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    # sorted by first end, then second: the force scatter then walks memory forward
+    order = np.lexsort((e.gid[pairs[:, 1]], e.gid[pairs[:, 0]]))
+    pairs = pairs[order]
+    gids = np.arange(len(pairs), dtype=np.int64) if gids is None else np.asarray(gids, dtype=np.int64)[order]
     i, j = pairs[:, 0], pairs[:, 1]
     d = e.x[j] - e.x[i]
     L0 = np.linalg.norm(d, axis=1)
@@ -69,7 +75,7 @@ def make_bonds(elements, pairs, material, frame, first_gid=0):
     nb = len(i)
     return Bonds(
         i=i.astype(np.int32), j=j.astype(np.int32),
-        gid=np.arange(first_gid, first_gid + nb, dtype=np.int64),
+        gid=gids.copy(),
         gid_i=e.gid[i].copy(), gid_j=e.gid[j].copy(),
         L0=L0, ka=ka, kb=kb, kt=kt, tau_a=tau_a, tau_b=tau_b, tau_t=tau_t,
         u1=to_body(i, n), p1=to_body(i, p), u2=to_body(j, n), p2=to_body(j, p),

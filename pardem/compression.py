@@ -11,6 +11,8 @@ import numpy as np
 from pardem.bonding import BeamMaterial, make_bonds
 from pardem.config import DeckError
 from pardem.domains.ordered import ordered_lattice
+from pardem.parallel.slab_comm import SlabComm
+from pardem.parallel.slabs import Slabs, choose_axis
 from pardem.physics.timestep import critical_time_step, eigen_bound
 from pardem.reducer import Reducer, young_and_poisson
 from pardem.simulation import Simulation
@@ -30,37 +32,72 @@ class CompressionCase:
     n_steps: int
     analytic_young: float      # pi/4 E r^2 along the axis, or nan where it does not apply
     transit_time: float        # time for an axial wave to cross the domain [s]
+    n_elements: int            # global counts
+    n_bonds: int
+    slab_axis: int
     frame: np.ndarray
     samples: list = field(default_factory=list)
 
 
+GHOST_STRETCH = 1.25   # bonds may stretch by 25 % before they would outgrow the ghost layer
+
+
 def build_case(comm, deck, steps=None):
-    """Elements, bonds, plates and time step of the deck's compression test; DeckError on bad dt."""
-    dom, bd, ld, run = deck["domain"], deck["bonds"], deck["loading"], deck["run"]
+    """Elements, bonds, plates and time step of the deck's compression test on this rank.
+
+    Every rank computes the lattice geometry (cheap), keeps its slab's elements and the bonds that
+    touch them, then the slab layer builds the ghosts. DeckError on a bad time step or split.
+    """
+    dom, bd, ld, run, par = deck["domain"], deck["bonds"], deck["loading"], deck["run"], deck["parallel"]
     R = dom["radius"]
     pos, pairs, frame = ordered_lattice(dom["box"], R, dom["tilt_deg"])
     if len(pos) < 8:
         raise DeckError(f"domain.box = {list(dom['box'])} holds only {len(pos)} elements of radius "
                         f"{R}: expected a box at least 2 diameters wide along each axis")
-    elements = Elements.from_spheres(pos, R, dom["density"])
-    material = BeamMaterial(young=bd["young"], radius_ratio=bd["radius_ratio"],
-                            poisson=bd["poisson"], damping=bd["damping"], law=bd["law"])
-    bonds = make_bonds(elements, pairs, material, frame)
+    n_global = len(pos)
+    gids = np.arange(n_global, dtype=np.int64)
+    pairs = np.sort(pairs, axis=1)
+    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    bond_gids = np.arange(len(pairs), dtype=np.int64)
     axis = "xyz".index(ld["axis"])
     low = float(np.min(pos[:, axis]) - R)
     high = float(np.max(pos[:, axis]) + R)
-    k_plate = float(np.mean(bonds.ka)) if deck["plates"]["stiffness"] == "auto" else deck["plates"]["stiffness"]
-    length = high - low
-    transit = length / _wave_speed(bonds, elements, axis)
-    ramp = ld["ramp_time"]
-    if ramp == "auto":
-        # two periods of the slowest axial mode, but at most half of the travel (the moduli are
-        # fitted over the constant-speed phase that follows)
-        ramp = min(4.0 * transit, ld["strain"] * length / ld["plate_speed"])
-    plates = Plates.pair(axis, low, high, ld["plate_speed"], k_plate, ramp)
-    gap = np.minimum(pos[:, axis] - R - low, high - pos[:, axis] - R)
-    elements.flags[gap < NEAR_PLATE_GAP * R] |= FLAG_NEAR_PLATE
+    extent = np.ptp(pos, axis=0) + 2 * R
+    near_plate = np.minimum(pos[:, axis] - R - low, high - pos[:, axis] - R) < NEAR_PLATE_GAP * R
 
+    # slabs: cuts from a distributed bisection over a stripe of the elements per rank
+    slab_axis = choose_axis(extent, avoid=axis) if par["slab_axis"] == "auto" else "xyz".index(par["slab_axis"])
+    split = par["initial_split"]
+    if split != "balanced" and len(split) != comm.size - 1:
+        raise DeckError(f"parallel.initial_split has {len(split)} fractions: expected {comm.size - 1} "
+                        f"(one per cut between {comm.size} ranks) or \"balanced\"")
+    stripe = slice(comm.rank, None, comm.size)
+    slabs = Slabs.balanced(comm, slab_axis, pos[stripe, slab_axis], gids[stripe],
+                           fractions=None if split == "balanced" else split)
+    owned = slabs.owner(pos[:, slab_axis], gids) == comm.rank
+    touch = owned[pairs[:, 0]] | owned[pairs[:, 1]]
+    partners = np.setdiff1d(pairs[touch].ravel(), np.nonzero(owned)[0])
+    rows = np.concatenate([np.nonzero(owned)[0], partners])
+    local_row = np.full(n_global, -1, dtype=np.int64)
+    local_row[rows] = np.arange(len(rows))
+    elements = Elements.from_spheres(pos[rows], R, dom["density"], gids[rows])
+    elements.n_owned = int(owned.sum())
+    elements.flags[near_plate[rows]] |= FLAG_NEAR_PLATE
+    material = BeamMaterial(young=bd["young"], radius_ratio=bd["radius_ratio"],
+                            poisson=bd["poisson"], damping=bd["damping"], law=bd["law"])
+    bonds = make_bonds(elements, local_row[pairs[touch]], material, frame, gids=bond_gids[touch])
+
+    domain = None
+    if comm.size > 1:
+        skin = 0.2 * R if par["skin"] == "auto" else par["skin"]
+        L_max = comm.max(float(bonds.L0.max()) if bonds.n else 0.0)
+        domain = SlabComm(comm, slabs, GHOST_STRETCH * L_max + skin, skin,
+                          balance_every=par["balance_every"], threshold=par["balance_threshold"],
+                          balance_by=par["balance_by"])
+        elements, bonds = domain.setup(elements, bonds)
+
+    k_plate = _global_mean_axial_stiffness(comm, bonds, elements) if deck["plates"]["stiffness"] == "auto" \
+        else deck["plates"]["stiffness"]
     lam = eigen_bound(bonds.i, bonds.j, bonds.L0, bonds.ka, bonds.kb, bonds.kt, elements.mass,
                       elements.inertia, elements.n_owned, k_plate / elements.mass)
     dt_c = critical_time_step(comm.max(lam), bd["damping"])
@@ -71,25 +108,52 @@ def build_case(comm, deck, steps=None):
         if dt > dt_c:
             raise DeckError(f"run.dt = {dt:.6g} s is above the critical time step {dt_c:.6g} s of this "
                             f"deck: expected a value in (0, {dt_c:.6g}] or \"auto\"")
+    length = high - low
+    transit = length / _wave_speed(comm, bonds, elements, axis)
+    ramp = ld["ramp_time"]
+    if ramp == "auto":
+        # two periods of the slowest axial mode, but at most half of the travel (the moduli are
+        # fitted over the constant-speed phase that follows)
+        ramp = min(4.0 * transit, ld["strain"] * length / ld["plate_speed"])
+    plates = Plates.pair(axis, low, high, ld["plate_speed"], k_plate, ramp)
     t_end = plates.time_to_travel(ld["strain"] * length)
     n_steps = steps if steps is not None else max(1, math.ceil(t_end / dt - 1e-9))
     others = [a for a in range(3) if a != axis]
-    ext = [float(np.ptp(pos[:, a]) + 2 * R) for a in range(3)]
-    section = ext[others[0]] * ext[others[1]]
+    section = float(extent[others[0]] * extent[others[1]])
     analytic = _analytic_young(bd, frame, axis)
-    sim = Simulation(comm, elements, bonds, plates, dt)
+    sim = Simulation(comm, elements, bonds, plates, dt, domain=domain)
     reducer = Reducer(comm, origin=0.5 * (pos.min(axis=0) + pos.max(axis=0)))
     return CompressionCase(sim=sim, reducer=reducer, axis=axis, cross_section=section, length=length,
                            dt_critical=dt_c, n_steps=n_steps, analytic_young=analytic,
-                           transit_time=transit, frame=frame)
+                           transit_time=transit, frame=frame, n_elements=n_global,
+                           n_bonds=len(pairs), slab_axis=slab_axis)
 
 
-def _wave_speed(bonds, elements, axis):
-    """Axial wave speed ``L0 sqrt(k / m)`` [m/s] of the bond chains closest to the loading axis."""
-    m = 0.5 * (elements.mass[bonds.i] + elements.mass[bonds.j])
-    d = np.abs(elements.x[bonds.j, axis] - elements.x[bonds.i, axis]) / bonds.L0
-    along = d >= d.max() - 1e-6
-    return float(np.mean(bonds.L0[along] * np.sqrt(bonds.ka[along] / m[along])))
+def _counted_once(bonds, elements):
+    """Mask of the bonds this rank counts in global sums: those whose first end it owns."""
+    return bonds.i < elements.n_owned
+
+
+def _global_mean_axial_stiffness(comm, bonds, elements):
+    once = _counted_once(bonds, elements)
+    s = comm.sum([bonds.ka[once].sum(), once.sum()])
+    return float(s[0] / s[1])
+
+
+def _wave_speed(comm, bonds, elements, axis):
+    """Axial wave speed ``L0 sqrt(k / m)`` [m/s] of the bond chains closest to the loading axis.
+
+    A global mean (every rank gets the same value, so the plate moves identically everywhere).
+    """
+    once = _counted_once(bonds, elements)
+    i, j = bonds.i[once], bonds.j[once]
+    m = 0.5 * (elements.mass[i] + elements.mass[j])
+    d = np.abs(elements.x[j, axis] - elements.x[i, axis]) / bonds.L0[once]
+    d_max = comm.max(float(d.max()) if len(d) else 0.0)
+    along = d >= d_max - 1e-6
+    c = bonds.L0[once][along] * np.sqrt(bonds.ka[once][along] / m[along])
+    s = comm.sum([c.sum(), along.sum()])
+    return float(s[0] / s[1])
 
 
 def _analytic_young(bd, frame, axis):

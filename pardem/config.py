@@ -101,6 +101,18 @@ def optional(inner):
     return check
 
 
+def fractions_or(word):
+    """Checker for ``word`` or an increasing list of fractions in (0, 1)."""
+    def check(name, v):
+        if v == word:
+            return word
+        if (isinstance(v, list) and all(_is_number(x) and 0 < x < 1 for x in v)
+                and all(a < b for a, b in zip(v, v[1:]))):
+            return tuple(float(x) for x in v)
+        raise DeckError(f"{name} = {v!r}: expected \"{word}\" or an increasing list of fractions in (0, 1)")
+    return check
+
+
 def boolean(name, v):
     if not isinstance(v, bool):
         raise DeckError(f"{name} = {v!r}: expected true or false")
@@ -142,6 +154,18 @@ COMPRESS_SCHEMA = {
         "dt": Field("auto", auto_or(positive()), "time step [s], or auto = dt_fraction * critical step"),
         "dt_fraction": Field(0.5, number(0.0, 1.0, hi_open=False), "fraction of the critical step when dt = auto"),
         "progress_seconds": Field(5.0, positive(), "seconds between progress lines (rank 0)"),
+    },
+    "parallel": {
+        "slab_axis": Field("auto", choice("auto", "x", "y", "z"),
+                           "axis the slabs are stacked along; auto = longest extent, not the loading axis"),
+        "skin": Field("auto", auto_or(positive()),
+                      "displacement budget between ghost rebuilds [m]; auto = 0.2 R"),
+        "balance_every": Field(200, number(lo=0, lo_open=False, integer=True),
+                               "steps between load-balance checks; 0 = never"),
+        "balance_threshold": Field(0.05, number(0.0, 1.0), "re-cut slabs above this imbalance (max/mean - 1)"),
+        "balance_by": Field("count", choice("count", "time"), "load measure: owned elements or computing seconds"),
+        "initial_split": Field("balanced", fractions_or("balanced"),
+                               "initial cuts: balanced, or cumulative element fractions (one per cut)"),
     },
     "output": {
         "series_every": Field(0, optional(number(lo=0, integer=True)),

@@ -25,7 +25,7 @@ class Simulation:
     above which the run is declared unstable (default: far above any physical DEM speed).
     """
 
-    def __init__(self, comm, elements, bonds, plates, dt, max_speed=1e4, check_every=50):
+    def __init__(self, comm, elements, bonds, plates, dt, max_speed=1e4, check_every=50, domain=None):
         self.comm = comm
         self.elements = elements
         self.bonds = bonds
@@ -38,7 +38,8 @@ class Simulation:
         self.max_speed2 = float(max_speed) ** 2
         self.check_every = int(check_every)
         self._unstable = False
-        self.seconds_computing = 0.0
+        self.seconds_computing = 0.0   # in the kernels (communication excluded)
+        self.domain = domain           # the parallel layer (SlabComm) or None on a single process
 
     def compute_forces(self):
         """Forces and torques of the current configuration (after ``f``, ``t`` were zeroed)."""
@@ -48,11 +49,18 @@ class Simulation:
                                          p.sides, p.stiffness, p.force_local)
 
     def step(self):
+        t0 = _time.perf_counter()
         e = self.elements
         kick_drift(e.x, e.v, e.w, e.q, e.rot, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned)
         self.plates.move_to((self.step_count + 1) * self.dt)
+        t1 = _time.perf_counter()
+        if self.domain is not None:
+            self.domain.update(self)   # migration and ghosts, or the ghost refresh
+            e = self.elements
+        t2 = _time.perf_counter()
         self.compute_forces()
         vmax2 = kick(e.v, e.w, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned)
+        self.seconds_computing += (t1 - t0) + (_time.perf_counter() - t2)
         if not vmax2 <= self.max_speed2:
             self._unstable = True
         self.step_count += 1
@@ -73,7 +81,6 @@ class Simulation:
         """Advance ``n_steps`` steps, running ``operations`` on their periods and at the end."""
         if self.step_count == 0:
             self.compute_forces()   # forces of the initial state for the first half kick
-        t0 = _time.perf_counter()
         end = self.step_count + int(n_steps)
         while self.step_count < end:
             self.step()
@@ -82,6 +89,5 @@ class Simulation:
             for op in operations:
                 if self.step_count % op.every == 0 and self.step_count != end:
                     op(self)
-        self.seconds_computing += _time.perf_counter() - t0
         for op in operations:
             op(self)

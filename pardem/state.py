@@ -16,6 +16,13 @@ from numba import njit
 
 from pardem.physics.quaternion import quat_to_matrix_into
 
+# Per-element arrays that travel with an element when it migrates (f, t and rot are recomputed).
+ELEMENT_FIELDS = ("x", "v", "w", "q", "radius", "mass", "inertia", "inv_mass", "inv_inertia",
+                  "x0", "gid", "flags")
+# Per-bond arrays that travel with a bond (i, j are rebuilt from the end gids).
+BOND_FIELDS = ("gid", "gid_i", "gid_j", "L0", "ka", "kb", "kt", "tau_a", "tau_b", "tau_t",
+               "u1", "p1", "u2", "p2", "young", "radius")
+
 # Element flag bits.
 FLAG_NEAR_PLATE = np.uint8(1)   # touches a plate at the start: left out of the strain fit
 
@@ -71,6 +78,19 @@ class Elements:
                    x0=x.copy(), gid=np.asarray(gids, dtype=np.int64).copy(),
                    flags=np.zeros(n, dtype=np.uint8), n_owned=n)
 
+    def pack(self, rows):
+        """Copies of the migrating fields of ``rows`` (a dict of arrays)."""
+        return {k: getattr(self, k)[rows] for k in ELEMENT_FIELDS}
+
+    @classmethod
+    def unpack(cls, parts, n_owned):
+        """Elements from a list of ``pack`` dicts; the first ``n_owned`` rows are owned."""
+        data = {k: np.concatenate([p[k] for p in parts]) for k in ELEMENT_FIELDS}
+        n = data["x"].shape[0]
+        e = cls(f=np.zeros((n, 3)), t=np.zeros((n, 3)), rot=np.empty((n, 3, 3)), n_owned=n_owned, **data)
+        e.refresh_rotations()
+        return e
+
     def refresh_rotations(self, start=0, stop=None):
         """Recompute the cached rotation matrices of rows ``[start, stop)`` from ``q``."""
         _refresh_rot(self.q, self.rot, start, self.n_total if stop is None else stop)
@@ -117,6 +137,23 @@ class Bonds:
     @property
     def n(self) -> int:
         return self.i.shape[0]
+
+    def pack(self, rows):
+        """Copies of the travelling fields of bonds ``rows`` (a dict of arrays)."""
+        return {k: getattr(self, k)[rows] for k in BOND_FIELDS}
+
+    @classmethod
+    def unpack(cls, parts, damped):
+        """Bonds from ``pack`` dicts, duplicates (same gid) dropped, ordered by (gid_i, gid_j).
+
+        ``i, j`` are left at -1: call ``relink`` next.
+        """
+        data = {k: np.concatenate([p[k] for p in parts]) for k in BOND_FIELDS}
+        _, first = np.unique(data["gid"], return_index=True)
+        keep = first[np.lexsort((data["gid_j"][first], data["gid_i"][first]))]
+        data = {k: v[keep] for k, v in data.items()}
+        n = len(keep)
+        return cls(i=np.full(n, -1, np.int32), j=np.full(n, -1, np.int32), damped=damped, **data)
 
     def relink(self, element_gids):
         """Rebuild ``i, j`` from the end global ids and the rows' ``element_gids``.

@@ -14,6 +14,8 @@ import pytest
 
 from pardem.bonding import BeamMaterial, make_bonds
 from pardem.domains.ordered import ordered_lattice
+from pardem.physics.quaternion import (quat_from_rotvec, quat_multiply_into, quat_to_matrix,
+                                       rotate_world)
 from pardem.physics.timestep import critical_time_step, eigen_bound
 from pardem.simulation import Simulation
 from pardem.state import Elements, Plates
@@ -28,7 +30,23 @@ def far_plates(k=1e6):
     return Plates.pair(0, -10.0, 10.0, 0.0, k)
 
 
-def test_free_rotation_is_exact():
+def test_quaternion_helpers_match_rodrigues():
+    rng = np.random.default_rng(6)
+    for _ in range(20):
+        a, b = random_rotvec(rng, 3.0), random_rotvec(rng, 3.0)
+        qa, qb = quat_from_rotvec(a), quat_from_rotvec(b)
+        np.testing.assert_allclose(quat_to_matrix(qa), rotmat(a), atol=1e-14)
+        out = np.empty(4)
+        quat_multiply_into(qa, qb, out)
+        np.testing.assert_allclose(quat_to_matrix(out), rotmat(a) @ rotmat(b), atol=1e-14)
+        # one step of rotate_world by w dt = b applies exp(b) on the world side
+        q = qa.copy()
+        rotate_world(q, b / 1e-3, 1e-3)
+        np.testing.assert_allclose(quat_to_matrix(q), rotmat(b) @ rotmat(a), atol=1e-13)
+
+
+@pytest.mark.parametrize("angle_per_step", [0.1, 3e-3, 1e-6])
+def test_free_rotation_is_exact(angle_per_step):
     rng = np.random.default_rng(1)
     e = Elements.from_spheres(np.array([[0.001, -0.002, 0.003]]), R, DENSITY)
     q0 = quat(random_rotvec(rng, np.pi))
@@ -40,7 +58,7 @@ def test_free_rotation_is_exact():
     e.v[0] = v
     x0 = e.x[0].copy()
     bonds = make_bonds(e, np.zeros((0, 2), dtype=np.int64), BeamMaterial(1e9, 0.5, 0.3, 0.0), np.eye(3))
-    dt = 5e-5                       # |w| dt = 0.1 rad per step
+    dt = angle_per_step / np.linalg.norm(w)
     n = 10_000
     sim = Simulation(FakeComm(), e, bonds, far_plates(), dt)
     sim.run(n)

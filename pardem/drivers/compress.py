@@ -48,8 +48,7 @@ def run(comm, args):
         out = os.path.join("runs", f"compress-{stamp}")
     sim = case.sim
     e = sim.elements
-    n_el = int(comm.sum(e.n_owned))
-    n_bonds = int(comm.sum(sim.bonds.n))
+    n_el, n_bonds = case.n_elements, case.n_bonds
     every = deck["output"]["series_every"] or max(1, case.n_steps // 200)
     sinks = []
     series = None
@@ -80,11 +79,18 @@ def run(comm, args):
             series.close()
     wall_run = time.perf_counter() - t_run
     result = measure(case)
+    per_rank = sim.domain.report(sim) if sim.domain is not None else [
+        {"rank": 0, "owned_elements": e.n_owned, "ghost_elements": 0, "bonds_held": sim.bonds.n,
+         "seconds_computing": sim.seconds_computing, "seconds_communicating": 0.0,
+         "rebuilds": 0, "rebalances": 0}]
+    counts = comm.sum([sim.elements.n_owned, int(np.count_nonzero(sim.bonds.i < sim.elements.n_owned))])
     if comm.is_root:
         summary = {
             "pardem_version": pardem.__version__,
             "driver": "compress",
             "n_elements": n_el, "n_bonds": n_bonds, "n_ranks": comm.size,
+            "n_elements_end": int(counts[0]), "n_bonds_end": int(counts[1]),
+            "slab_axis": "xyz"[case.slab_axis], "per_rank": per_rank,
             "steps": sim.step_count, "dt": sim.dt, "dt_critical": case.dt_critical,
             "time": sim.time, "loading_axis": "xyz"[case.axis],
             "nominal_strain": sim.plates.displacement() / case.length,
@@ -96,7 +102,7 @@ def run(comm, args):
             "wall_seconds": time.perf_counter() - t_start,
             "run_seconds": wall_run,
             "element_steps_per_second": n_el * case.n_steps / wall_run,
-            "bytes_per_element": (e.nbytes() + sim.bonds.nbytes()) / max(e.n_owned, 1),
+            "bytes_per_element": (sim.elements.nbytes() + sim.bonds.nbytes()) / max(sim.elements.n_owned, 1),
             "deck": deck,
         }
         write_json(os.path.join(out, "summary.json"), summary)

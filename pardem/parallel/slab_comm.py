@@ -1,0 +1,273 @@
+"""Communication between slabs: migration, ghost layers and the per-step ghost refresh.
+
+Verbs (LAMMPS style; only ``Simulation.step`` and the setup call them):
+
+* ``exchange``: owned elements whose key left the slab move to their owner with the bonds they take
+  part in (bond state travels whole: reference vectors, stiffness, later plastic strain);
+* ``borders``: each rank sends the neighbours its elements within ``ghost_range`` of the shared
+  boundary; they become ghost rows after the owned rows, and bonds are relinked by global id;
+* ``forward``: every step, positions, velocities, angular velocities and orientations of the ghost
+  rows are refreshed with non-blocking point-to-point messages to the two neighbours only.
+
+Bond scheme: a rank computes every bond that has at least one owned end, and keeps the forces on its
+owned rows only (ghost rows are zeroed each step). A bond crossing a boundary is thus computed on
+both sides, from bitwise-identical inputs (ghosts are exact copies) and in the same orientation
+(ends ordered by gid), so both sides apply exactly opposite forces. We chose this over reverse
+communication of ghost forces because it needs one message per neighbour per step instead of two,
+and because bond state updates (plasticity, rupture) then happen identically on both sides with no
+extra message; the price is computing the boundary bonds twice, a fraction ``~ range / slab width``.
+
+Rebuilds (exchange + borders) happen when an owned element has moved more than half the skin since
+the last one, or when the load balance is re-done; in between, ghosts are valid because every
+element that can interact with an owned one was within ``ghost_range = interaction + skin``.
+"""
+import time
+
+import numpy as np
+from numba import njit
+
+from pardem.parallel.slabs import Slabs, imbalance
+from pardem.state import Bonds, Elements
+
+_TAG_FORWARD = 71
+GHOST_WIDTH = 13   # doubles per ghost per step: x, v, w (3 each), q (4)
+
+
+@njit(cache=True, error_model="numpy")
+def _pack_forward(x, v, w, q, rows, buf):
+    for k in range(rows.shape[0]):
+        r = rows[k]
+        for d in range(3):
+            buf[k, d] = x[r, d]
+            buf[k, 3 + d] = v[r, d]
+            buf[k, 6 + d] = w[r, d]
+        for d in range(4):
+            buf[k, 9 + d] = q[r, d]
+
+
+@njit(cache=True, error_model="numpy")
+def _unpack_forward(buf, start, x, v, w, q):
+    for k in range(buf.shape[0]):
+        r = start + k
+        for d in range(3):
+            x[r, d] = buf[k, d]
+            v[r, d] = buf[k, 3 + d]
+            w[r, d] = buf[k, 6 + d]
+        for d in range(4):
+            q[r, d] = buf[k, 9 + d]
+
+
+@njit(cache=True, error_model="numpy")
+def max_displacement2(x, x_ref, n):
+    m = 0.0
+    for k in range(n):
+        d = (x[k, 0] - x_ref[k, 0]) ** 2 + (x[k, 1] - x_ref[k, 1]) ** 2 + (x[k, 2] - x_ref[k, 2]) ** 2
+        if not d <= m:
+            m = d
+    return m
+
+
+def _select(arrays, rows):
+    return {k: v[rows] for k, v in arrays.items()}
+
+
+def _concat(parts):
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+class DecompositionError(RuntimeError):
+    """The decomposition cannot hold this domain (e.g. slabs thinner than the ghost range)."""
+
+
+class SlabComm:
+    """Slab decomposition of one ``Simulation``'s elements and bonds over ``comm``.
+
+    ghost_range [m]: interaction range plus skin; skin [m]: allowed displacement budget between
+    rebuilds (rebuild when an element moved more than skin / 2). Load balance is checked every
+    ``balance_every`` steps; slabs are re-cut when the imbalance of the owned counts (``balance_by =
+    "count"``) or of the measured computing seconds (``"time"``) exceeds ``threshold``.
+    """
+
+    def __init__(self, comm, slabs, ghost_range, skin, balance_every=200, threshold=0.05,
+                 balance_by="count"):
+        self.comm = comm
+        self.mpi = comm.comm
+        self.slabs = slabs
+        self.ghost_range = float(ghost_range)
+        self.skin = float(skin)
+        self.balance_every = int(balance_every)
+        self.threshold = float(threshold)
+        self.balance_by = balance_by
+        r, P = comm.rank, comm.size
+        self.left = r - 1 if r > 0 else None
+        self.right = r + 1 if r < P - 1 else None
+        self.neighbours = [n for n in (self.left, self.right) if n is not None]
+        self.send_rows = {}
+        self.recv_start = {}
+        self.recv_count = {}
+        self._send_buf = {}
+        self._recv_buf = {}
+        self.x_build = None
+        self.seconds_communicating = 0.0
+        self.rebuilds = 0
+        self.rebalances = 0
+        self._compute_mark = 0.0
+
+    # -- setup and rebuilds -------------------------------------------------------------------
+
+    def setup(self, elements, bonds):
+        """Migrate, build ghosts and relink: returns the new (elements, bonds)."""
+        elements, bonds = self.exchange(elements, bonds)
+        return self.borders(elements, bonds)
+
+    def _key(self, e, n):
+        return e.x[:n, self.slabs.axis], e.gid[:n]
+
+    def exchange(self, elements, bonds):
+        """Move owned elements (with their bonds) to the ranks owning their keys; drop ghosts.
+
+        Returns owned-only elements sorted by gid, and the bonds with at least one owned end
+        (``i, j`` not yet linked: ``borders`` does it).
+        """
+        axis = self.slabs.axis
+        cur = elements.pack(slice(0, elements.n_owned))
+        cur_bonds = bonds.pack(slice(0, bonds.n))
+        for _ in range(self.comm.size):
+            owner = self.slabs.owner(cur["x"][:, axis], cur["gid"])
+            go = {self.left: owner < self.comm.rank, self.right: owner > self.comm.rank}
+            if not self.comm.any(np.any(owner != self.comm.rank)):
+                break
+            if go.pop(None, np.zeros(0, bool)).any():
+                raise DecompositionError("an element left the domain of all slabs")
+            out = {}
+            for nb, mask in go.items():
+                gids = cur["gid"][mask]
+                touch = np.isin(cur_bonds["gid_i"], gids) | np.isin(cur_bonds["gid_j"], gids)
+                out[nb] = (_select(cur, mask), _select(cur_bonds, touch))
+            got = self._swap(out)
+            cur = _concat([_select(cur, owner == self.comm.rank)] + [g[0] for g in got])
+            cur_bonds = _concat([cur_bonds] + [g[1] for g in got])
+        else:
+            raise DecompositionError("elements still misplaced after one pass per rank")
+        cur = _select(cur, np.argsort(cur["gid"], kind="stable"))
+        mine = np.isin(cur_bonds["gid_i"], cur["gid"]) | np.isin(cur_bonds["gid_j"], cur["gid"])
+        return Elements.unpack([cur], len(cur["gid"])), Bonds.unpack([_select(cur_bonds, mine)], bonds.damped)
+
+    def _swap(self, out):
+        """Send ``out[neighbour]`` (pickled) to each neighbour, receive theirs; list of received."""
+        reqs = [self.mpi.isend(out.get(nb), dest=nb, tag=72) for nb in self.neighbours]
+        got = [self.mpi.recv(source=nb, tag=72) for nb in self.neighbours]
+        for r in reqs:
+            r.wait()
+        return [g for g in got if g is not None]
+
+    def borders(self, elements, bonds):
+        """Ghost rows from the neighbours within ``ghost_range`` of each boundary; relinks bonds."""
+        e = elements
+        n = e.n_owned
+        if self.slabs.narrowest_interior() < self.ghost_range:
+            raise DecompositionError(
+                f"a slab is {self.slabs.narrowest_interior():.4g} m thin, less than the ghost range "
+                f"{self.ghost_range:.4g} m: use fewer ranks for this domain")
+        lo, hi = self.slabs.bounds(self.comm.rank)
+        s = e.x[:n, self.slabs.axis]
+        rows = {}
+        if self.left is not None:
+            rows[self.left] = np.nonzero(s < lo + self.ghost_range)[0]
+        if self.right is not None:
+            rows[self.right] = np.nonzero(s >= hi - self.ghost_range)[0]
+        got = self._swap_in_order({nb: e.pack(r) for nb, r in rows.items()})
+        parts = [e.pack(slice(0, n))]
+        start = n
+        self.send_rows, self.recv_start, self.recv_count = {}, {}, {}
+        for nb in self.neighbours:
+            self.send_rows[nb] = rows[nb].astype(np.int64)
+            part = got[nb]
+            self.recv_start[nb] = start
+            self.recv_count[nb] = len(part["gid"])
+            start += len(part["gid"])
+            parts.append(part)
+        new = Elements.unpack(parts, n)
+        try:
+            bonds.relink(new.gid)
+        except KeyError as err:
+            raise DecompositionError(f"{err.args[0]}: a bond is longer than the ghost range "
+                                     f"{self.ghost_range:.4g} m") from None
+        self._send_buf = {nb: np.empty((len(self.send_rows[nb]), GHOST_WIDTH)) for nb in self.neighbours}
+        self._recv_buf = {nb: np.empty((self.recv_count[nb], GHOST_WIDTH)) for nb in self.neighbours}
+        self.x_build = new.x[:n].copy()
+        return new, bonds
+
+    def _swap_in_order(self, out):
+        reqs = [self.mpi.isend(out[nb], dest=nb, tag=73) for nb in self.neighbours]
+        got = {nb: self.mpi.recv(source=nb, tag=73) for nb in self.neighbours}
+        for r in reqs:
+            r.wait()
+        return got
+
+    # -- every step ---------------------------------------------------------------------------
+
+    def forward(self, e):
+        """Refresh the ghost rows' x, v, w, q (and rotation matrices) from their owners."""
+        reqs = []
+        for nb in self.neighbours:
+            if self.recv_count[nb]:
+                reqs.append(self.mpi.Irecv(self._recv_buf[nb], source=nb, tag=_TAG_FORWARD))
+        for nb in self.neighbours:
+            if len(self.send_rows[nb]):
+                _pack_forward(e.x, e.v, e.w, e.q, self.send_rows[nb], self._send_buf[nb])
+                reqs.append(self.mpi.Isend(self._send_buf[nb], dest=nb, tag=_TAG_FORWARD))
+        self.comm._MPI.Request.Waitall(reqs)
+        for nb in self.neighbours:
+            if self.recv_count[nb]:
+                _unpack_forward(self._recv_buf[nb], self.recv_start[nb], e.x, e.v, e.w, e.q)
+        e.refresh_rotations(e.n_owned, e.n_total)
+
+    def update(self, sim):
+        """Called by ``Simulation.step`` after the drift: rebuild (and rebalance) or refresh ghosts."""
+        t0 = time.perf_counter()
+        e = sim.elements
+        rebalance = self.balance_every > 0 and sim.step_count % self.balance_every == 0 and self._unbalanced(sim)
+        moved = max_displacement2(e.x, self.x_build, e.n_owned)
+        if rebalance or self.comm.max(moved) > (0.5 * self.skin) ** 2:
+            if rebalance:
+                self._recut(sim)
+            sim.elements, sim.bonds = self.setup(e, sim.bonds)
+            self.rebuilds += 1
+        else:
+            self.forward(e)
+        self.seconds_communicating += time.perf_counter() - t0
+
+    # -- load balance -------------------------------------------------------------------------
+
+    def _loads(self, sim):
+        if self.balance_by == "time":
+            busy = sim.seconds_computing - self._compute_mark
+            return np.array(self.mpi.allgather(busy))
+        return np.array(self.mpi.allgather(sim.elements.n_owned), dtype=float)
+
+    def _unbalanced(self, sim):
+        loads = self._loads(sim)
+        self._last_loads = loads
+        return imbalance(loads) > self.threshold
+
+    def _recut(self, sim):
+        e = sim.elements
+        n = e.n_owned
+        weights = None
+        if self.balance_by == "time":
+            per_element = self._last_loads[self.comm.rank] / max(n, 1)
+            weights = np.full(n, per_element)
+        self.slabs = Slabs.balanced(self.comm, self.slabs.axis, e.x[:n, self.slabs.axis], e.gid[:n], weights)
+        self._compute_mark = sim.seconds_computing
+        self.rebalances += 1
+
+    def report(self, sim):
+        """Per-rank table (list of dicts on every rank): owned, ghosts, computing and comm seconds."""
+        e = sim.elements
+        row = {"rank": self.comm.rank, "owned_elements": int(e.n_owned),
+               "ghost_elements": int(e.n_total - e.n_owned), "bonds_held": int(sim.bonds.n),
+               "seconds_computing": float(sim.seconds_computing),
+               "seconds_communicating": float(self.seconds_communicating),
+               "rebuilds": self.rebuilds, "rebalances": self.rebalances}
+        return self.mpi.allgather(row)
