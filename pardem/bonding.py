@@ -65,9 +65,10 @@ def make_bonds(elements, pairs, material, frame, gids=None):
     zeta = material.damping
     m_red = e.mass[i] * e.mass[j] / (e.mass[i] + e.mass[j])
     i_red = e.inertia[i] * e.inertia[j] / (e.inertia[i] + e.inertia[j])
-    # tau = c / k = 2 zeta sqrt(m*/k); bending uses the end-rotation stiffness 4EI/L0
+    # tau = c / k = 2 zeta sqrt(m*/k) per mode of the free pair: axial (ES/L0 against m*),
+    # relative bending (the ends turning opposite ways: EI/L0 against I*), twist (GI0/L0 against I*)
     tau_a = 2.0 * zeta * np.sqrt(m_red / ka)
-    tau_b = 2.0 * zeta * np.sqrt(i_red / (4.0 * kb / L0))
+    tau_b = 2.0 * zeta * np.sqrt(i_red * L0 / kb)
     tau_t = 2.0 * zeta * np.sqrt(i_red / kt)
     p = _reference_normal(n)
     # body-frame copies: R^T v for each end

@@ -13,7 +13,7 @@ from pardem.config import DeckError
 from pardem.domains.ordered import ordered_lattice
 from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs, choose_axis
-from pardem.physics.timestep import critical_time_step, eigen_bound
+from pardem.physics.timestep import critical_time_step, eigen_bound, max_tau
 from pardem.reducer import Reducer, young_and_poisson
 from pardem.simulation import Simulation
 from pardem.state import FLAG_NEAR_PLATE, Elements, Plates
@@ -100,7 +100,7 @@ def build_case(comm, deck, steps=None):
         else deck["plates"]["stiffness"]
     lam = eigen_bound(bonds.i, bonds.j, bonds.L0, bonds.ka, bonds.kb, bonds.kt, elements.mass,
                       elements.inertia, elements.n_owned, k_plate / elements.mass)
-    dt_c = critical_time_step(comm.max(lam), bd["damping"])
+    dt_c = critical_time_step(comm.max(lam), comm.max(max_tau(bonds)))
     if run["dt"] == "auto":
         dt = run["dt_fraction"] * dt_c
     else:

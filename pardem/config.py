@@ -162,7 +162,7 @@ COMPRESS_SCHEMA = {
                       "displacement budget between ghost rebuilds [m]; auto = 0.2 R"),
         "balance_every": Field(200, number(lo=0, lo_open=False, integer=True),
                                "steps between load-balance checks; 0 = never"),
-        "balance_threshold": Field(0.05, number(0.0, 1.0), "re-cut slabs above this imbalance (max/mean - 1)"),
+        "balance_threshold": Field(0.05, number(0.0, 1.0), "re-cut slabs when per-rank loads differ by more (max/min - 1)"),
         "balance_by": Field("count", choice("count", "time"), "load measure: owned elements or computing seconds"),
         "initial_split": Field("balanced", fractions_or("balanced"),
                                "initial cuts: balanced, or cumulative element fractions (one per cut)"),

@@ -5,6 +5,7 @@ layer's ghost exchange goes here), bond and plate forces, second half kick. Oper
 with an ``every`` period in steps (writers, progress, checks); they run after the step whose count
 is a multiple of their period, and once more at the end of ``run``.
 """
+import os
 import time as _time
 
 import numpy as np
@@ -12,6 +13,30 @@ import numpy as np
 from pardem.physics.beam import compute_bonds
 from pardem.physics.plates import plate_forces
 from pardem.physics.verlet import kick, kick_drift, kinetic_energy
+
+
+class InjectedFault(RuntimeError):
+    """Raised on purpose by ``FaultInjection`` (tests of failure handling)."""
+
+
+class FaultInjection:
+    """Operation raising on one rank at one step, from ``PARDEM_FAULT=rank:step`` (for tests).
+
+    Lets a test check that a failure on one rank ends every rank promptly.
+    """
+    every = 1
+
+    def __init__(self, rank, step):
+        self.rank, self.step = int(rank), int(step)
+
+    @classmethod
+    def from_environment(cls):
+        spec = os.environ.get("PARDEM_FAULT")
+        return cls(*spec.split(":")) if spec else None
+
+    def __call__(self, sim):
+        if sim.comm.rank == self.rank and sim.step_count == self.step:
+            raise InjectedFault(f"fault injected on rank {self.rank} at step {self.step} (PARDEM_FAULT)")
 
 
 class InstabilityError(RuntimeError):

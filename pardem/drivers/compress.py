@@ -20,7 +20,7 @@ from pardem.config import COMPRESS_SCHEMA, DeckError
 from pardem.io.series import SeriesCSV
 from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator, report_and_abort
-from pardem.simulation import InstabilityError
+from pardem.simulation import FaultInjection, InstabilityError
 
 
 def main(argv=None):
@@ -69,7 +69,8 @@ def run(comm, args):
     sampler(sim)   # the initial state
     t_run = time.perf_counter()
     try:
-        sim.run(case.n_steps, operations=[sampler])
+        fault = FaultInjection.from_environment()
+        sim.run(case.n_steps, operations=[sampler] + ([fault] if fault else []))
     except InstabilityError as err:
         if comm.is_root:
             sys.stderr.write(f"pardem: error: {err}\n")

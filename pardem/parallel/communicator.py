@@ -4,9 +4,13 @@ Everything above this layer calls these verbs and never mpi4py directly, so a ru
 without ``mpiexec`` works the same way (MPI singleton).
 """
 import sys
+import time
 import traceback
 
 import numpy as np
+
+
+ABORT_GRACE_SECONDS = 1.0
 
 
 class Communicator:
@@ -49,9 +53,14 @@ class Communicator:
             self.comm.Barrier()
 
     def abort(self, code=1):
-        """End every rank of the job now (used when one rank fails and the others may be waiting)."""
+        """End every rank of the job now (used when one rank fails and the others may be waiting).
+
+        Flushes, then waits a moment so that the MPI launcher forwards this rank's last output
+        before it tears the job down.
+        """
         sys.stdout.flush()
         sys.stderr.flush()
+        time.sleep(ABORT_GRACE_SECONDS)
         self.comm.Abort(code)
 
 

@@ -119,7 +119,8 @@ def choose_axis(extent, avoid=None):
 
 
 def imbalance(values):
-    """``max / mean - 1`` of per-rank loads (0 = perfect)."""
+    """How much per-rank loads differ: ``max / min - 1`` (0 = perfect; inf if a rank is idle)."""
     v = np.asarray(values, dtype=float)
-    m = v.mean()
-    return float(v.max() / m - 1.0) if m > 0 else 0.0
+    if v.max() <= 0:
+        return 0.0
+    return float(v.max() / v.min() - 1.0) if v.min() > 0 else float("inf")

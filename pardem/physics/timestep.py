@@ -5,9 +5,13 @@ mass-scaled stiffness ``M^-1/2 K M^-1/2`` is bounded by the block Gershgorin the
 and spectral norms, which are frame independent: for each element row (translation, rotation)
 ``omega_max^2 <= sum over its blocks ||K_ab|| / sqrt(M_a M_b)``. Per beam bond the block norms are
 ``max(ES/L, 12EI/L^3)`` (translation), ``6EI/L^2`` (translation-rotation), ``max(GI0/L, 4EI/L)``
-(own rotation) and ``max(GI0/L, 2EI/L)`` (rotation-rotation across). Viscous damping of ratio
-``zeta`` shrinks the bound by ``sqrt(1 + zeta^2) - zeta``. The result is a sufficient bound,
-tighter than the per-bond ``sqrt(m/k)`` when elements have many bonds.
+(own rotation) and ``max(GI0/L, 2EI/L)`` (rotation-rotation across).
+
+Bond damping is stiffness-proportional (damping = tau * stiffness per bond), so a mode of frequency
+omega has damping ratio ``tau omega / 2``; central differences with such damping are stable for
+``dt < (2/omega)(sqrt(1 + zeta^2) - zeta) = sqrt(tau^2 + 4/omega^2) - tau``, taken at the largest
+``omega`` and ``tau``. The result is a sufficient bound, tighter than the per-bond ``sqrt(m/k)``
+when elements have many bonds.
 """
 import numpy as np
 from numba import njit
@@ -40,9 +44,20 @@ def eigen_bound(bi, bj, L0, ka, kb, kt, mass, inertia, n_owned, plate_k_per_mass
     return worst
 
 
-def critical_time_step(omega2_max, damping_ratio=0.0):
-    """``dt_c = 2 / omega_max * (sqrt(1 + zeta^2) - zeta)`` [s]; ``inf`` when nothing is stiff."""
+def critical_time_step(omega2_max, tau_max=0.0):
+    """``dt_c = sqrt(tau^2 + 4 / omega_max^2) - tau`` [s]; ``inf`` when nothing is stiff.
+
+    omega2_max : bound of omega^2 [1/s^2] (``eigen_bound``); tau_max : largest bond damping time
+    constant c/k [s] (0 without damping).
+    """
     if omega2_max <= 0.0:
         return np.inf
-    z = float(damping_ratio)
-    return 2.0 / np.sqrt(omega2_max) * (np.sqrt(1.0 + z * z) - z)
+    t = float(tau_max)
+    return float(np.sqrt(t * t + 4.0 / omega2_max) - t)
+
+
+def max_tau(bonds):
+    """Largest damping time constant of ``bonds`` [s] (0 for none)."""
+    if bonds.n == 0:
+        return 0.0
+    return float(max(bonds.tau_a.max(), bonds.tau_b.max(), bonds.tau_t.max()))
