@@ -1,42 +1,57 @@
-"""The compression test between plates: build the case from a deck, run it, measure the moduli.
-
-Used by the compress driver and by the tests; knows nothing of files (the driver writes them).
+"""The compression test between plates: build the case from a deck (or a checkpoint), run it,
+measure the moduli. Used by the compress driver and by the tests; files are written by the driver
+and the I/O layer.
 """
 import math
+import os
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from pardem.bonding import BeamMaterial, make_bonds
-from pardem.config import DeckError
+from pardem.config import DeckError, physics_differences
+from pardem.io import checkpoint
+from pardem.io.checkpoint import BOND_DATASETS, ELEMENT_DATASETS
 from pardem.domains.ordered import ordered_lattice
 from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs, choose_axis
 from pardem.physics.timestep import critical_time_step, eigen_bound, max_tau
 from pardem.reducer import Reducer, young_and_poisson
 from pardem.simulation import Simulation
-from pardem.state import FLAG_NEAR_PLATE, Elements, Plates
+from pardem.state import FLAG_NEAR_PLATE, Bonds, Elements, Plates
 
 NEAR_PLATE_GAP = 0.5   # elements closer than this many radii to a plate at the start: not in the strain fit
 
 
 @dataclass
 class CompressionCase:
+    """A compression test on this rank: the simulation, its reducer and the run constants.
+
+    ``constants`` holds every derived quantity the run depends on (time step, plate motion, ...),
+    computed once from the deck and stored in checkpoints, so that a restart reuses them exactly.
+    ``n_steps`` is the run's total step count from its start.
+    """
     sim: Simulation
     reducer: Reducer
-    axis: int
-    cross_section: float       # initial section normal to the axis [m^2]
-    length: float              # initial plate gap [m]
-    dt_critical: float
+    deck: dict
+    constants: dict
     n_steps: int
-    analytic_young: float      # pi/4 E r^2 along the axis, or nan where it does not apply
-    transit_time: float        # time for an axial wave to cross the domain [s]
-    n_elements: int            # global counts
-    n_bonds: int
-    slab_axis: int
-    frame: np.ndarray
     samples: list = field(default_factory=list)
+
+    axis = property(lambda self: self.constants["axis"])
+    cross_section = property(lambda self: self.constants["cross_section"])   # initial [m^2]
+    length = property(lambda self: self.constants["length"])                 # initial plate gap [m]
+    dt_critical = property(lambda self: self.constants["dt_critical"])
+    analytic_young = property(lambda self: self.constants["analytic_young"])  # pi/4 E r^2 or nan
+    transit_time = property(lambda self: self.constants["transit_time"])     # axial wave crossing [s]
+    n_elements = property(lambda self: self.constants["n_elements"])
+    n_bonds = property(lambda self: self.constants["n_bonds"])
+    slab_axis = property(lambda self: self.constants["slab_axis"])
+
+    @property
+    def steps_left(self):
+        return max(0, self.n_steps - self.sim.step_count)
 
 
 GHOST_STRETCH = 1.25   # bonds may stretch by 25 % before they would outgrow the ghost layer
@@ -87,13 +102,10 @@ def build_case(comm, deck, steps=None):
                             poisson=bd["poisson"], damping=bd["damping"], law=bd["law"])
     bonds = make_bonds(elements, local_row[pairs[touch]], material, frame, gids=bond_gids[touch])
 
-    domain = None
-    if comm.size > 1:
-        skin = 0.2 * R if par["skin"] == "auto" else par["skin"]
-        L_max = comm.max(float(bonds.L0.max()) if bonds.n else 0.0)
-        domain = SlabComm(comm, slabs, GHOST_STRETCH * L_max + skin, skin,
-                          balance_every=par["balance_every"], threshold=par["balance_threshold"],
-                          balance_by=par["balance_by"])
+    skin = 0.2 * R if par["skin"] == "auto" else par["skin"]
+    ghost_range = GHOST_STRETCH * comm.max(float(bonds.L0.max()) if bonds.n else 0.0) + skin
+    domain = _slab_comm(comm, slabs, ghost_range, skin, par)
+    if domain is not None:
         elements, bonds = domain.setup(elements, bonds)
 
     k_plate = _global_mean_axial_stiffness(comm, bonds, elements) if deck["plates"]["stiffness"] == "auto" \
@@ -115,27 +127,138 @@ def build_case(comm, deck, steps=None):
         # two periods of the slowest axial mode, but at most half of the travel (the moduli are
         # fitted over the constant-speed phase that follows)
         ramp = min(4.0 * transit, ld["strain"] * length / ld["plate_speed"])
-    plates = Plates.pair(axis, low, high, ld["plate_speed"], k_plate, ramp)
-    t_end = plates.time_to_travel(ld["strain"] * length)
-    n_steps = steps if steps is not None else max(1, math.ceil(t_end / dt - 1e-9))
     others = [a for a in range(3) if a != axis]
-    section = float(extent[others[0]] * extent[others[1]])
-    analytic = _analytic_young(bd, frame, axis)
-    sim = Simulation(comm, elements, bonds, plates, dt, domain=domain)
-    reducer = Reducer(comm, origin=0.5 * (pos.min(axis=0) + pos.max(axis=0)))
-    return CompressionCase(sim=sim, reducer=reducer, axis=axis, cross_section=section, length=length,
-                           dt_critical=dt_c, n_steps=n_steps, analytic_young=analytic,
-                           transit_time=transit, frame=frame, n_elements=n_global,
-                           n_bonds=len(pairs), slab_axis=slab_axis)
+    constants = {
+        "dt": dt, "dt_critical": dt_c, "plate_stiffness": k_plate, "ramp_time": ramp,
+        "plate_low": low, "plate_high": high, "axis": axis, "length": length,
+        "cross_section": float(extent[others[0]] * extent[others[1]]), "transit_time": transit,
+        "analytic_young": _analytic_young(bd, frame, axis), "n_elements": n_global,
+        "n_bonds": len(pairs), "origin": 0.5 * (pos.min(axis=0) + pos.max(axis=0)),
+        "slab_axis": slab_axis, "ghost_range": ghost_range, "skin": skin, "damped": bonds.damped,
+    }
+    return _assemble(comm, deck, elements, bonds, domain, constants, steps)
 
 
-def _counted_once(bonds, elements):
-    """Mask of the bonds this rank counts in global sums: those whose first end it owns."""
-    return bonds.i < elements.n_owned
+def _slab_comm(comm, slabs, ghost_range, skin, par):
+    if comm.size == 1:
+        return None
+    return SlabComm(comm, slabs, ghost_range, skin, balance_every=par["balance_every"],
+                    threshold=par["balance_threshold"], balance_by=par["balance_by"])
+
+
+def _assemble(comm, deck, elements, bonds, domain, constants, steps, step=0, samples=()):
+    """The case from its state and constants; ``steps`` = total steps from the run's start."""
+    c = constants
+    ld = deck["loading"]
+    plates = Plates.pair(c["axis"], c["plate_low"], c["plate_high"], ld["plate_speed"],
+                         c["plate_stiffness"], c["ramp_time"])
+    if steps is None:
+        t_end = plates.time_to_travel(ld["strain"] * c["length"])
+        steps = max(1, math.ceil(t_end / c["dt"] - 1e-9))
+    sim = Simulation(comm, elements, bonds, plates, c["dt"], domain=domain)
+    sim.step_count = int(step)
+    sim.time = sim.step_count * sim.dt
+    plates.move_to(sim.time)
+    reducer = Reducer(comm, origin=c["origin"])
+    return CompressionCase(sim=sim, reducer=reducer, deck=deck, constants=c, n_steps=int(steps),
+                           samples=list(samples))
+
+
+def checkpoint_payload(case):
+    """(groups, series, attrs) for ``pardem.io.checkpoint.write_checkpoint`` (every rank)."""
+    sim = case.sim
+    e, b = sim.elements, sim.bonds
+    n = e.n_owned
+    elements = {k: getattr(e, k)[:n] for k in ELEMENT_DATASETS if k != "x_build"}
+    elements["x_build"] = sim.domain.x_build if sim.domain is not None else e.x[:n]
+    once = b.counted_once(n)
+    bonds = {k: getattr(b, k)[once] for k in BOND_DATASETS}
+    series = samples_to_columns(case.samples)
+    slabs = sim.domain.slabs if sim.domain is not None else None
+    attrs = {"step": sim.step_count, "time": sim.time, "deck": case.deck, "constants": case.constants,
+             "rng_state": {"generator": None}, "slab_axis": case.slab_axis,
+             "slab_cut_s": slabs.cut_s if slabs is not None else np.zeros(0),
+             "slab_cut_g": slabs.cut_g if slabs is not None else np.zeros(0, dtype=np.int64)}
+    return {"elements": elements, "bonds": bonds}, series, attrs
+
+
+def samples_to_columns(samples):
+    keys = ("step", "time", "plate_displacement", "force_fixed", "force_moving")
+    cols = {k: np.array([s[k] for s in samples]) for k in keys}
+    cols["H"] = np.array([s["H"] for s in samples]).reshape(-1, 3, 3)
+    return cols
+
+
+def columns_to_samples(cols):
+    out = []
+    for k in range(len(cols["step"])):
+        H = np.array(cols["H"][k])
+        out.append({"step": int(cols["step"][k]), "time": float(cols["time"][k]),
+                    "plate_displacement": float(cols["plate_displacement"][k]),
+                    "force_fixed": float(cols["force_fixed"][k]), "force_moving": float(cols["force_moving"][k]),
+                    "H": H, "eps": 0.5 * (H + H.T)})
+    return out
+
+
+def restore_case(comm, deck, path, steps=None):
+    """The case continued from checkpoint ``path`` on this communicator (any number of ranks).
+
+    On the rank count that wrote it, every rank reads back exactly its rows and its slabs, so the
+    continued run is bit-for-bit the uninterrupted one; on another count, slabs are re-cut and the
+    elements migrate to their new owners. CheckpointError for an unusable file, DeckError when the
+    deck would change the physics.
+    """
+    meta = checkpoint.inspect(path)
+    diffs = physics_differences(meta["deck"], deck)
+    if diffs:
+        name, old, new = diffs[0]
+        raise DeckError(f"{name} = {new!r} differs from the checkpoint's {old!r}: a restart may change "
+                        f"only the run length (loading.strain, --steps) and the output, checkpoint and "
+                        f"parallel settings")
+    c = meta["constants"]
+    c["origin"] = np.asarray(c["origin"])
+    par = deck["parallel"]
+    slab_axis = c["slab_axis"] if par["slab_axis"] == "auto" else "xyz".index(par["slab_axis"])
+    same = int(meta["n_ranks"]) == comm.size and slab_axis == int(meta["slab_axis"])
+    names = [k for k in ELEMENT_DATASETS]
+    if same:
+        counts = np.asarray(meta["owned_counts"], dtype=np.int64)
+        off = int(counts[:comm.rank].sum())
+        el = checkpoint.read_rows(path, "elements", names, slice(off, off + int(counts[comm.rank])))
+        slabs = Slabs(slab_axis, meta["slab_cut_s"], meta["slab_cut_g"])
+    else:
+        N = int(meta["n_elements"])
+        stripe = slice(comm.rank * N // comm.size, (comm.rank + 1) * N // comm.size)
+        chunk = checkpoint.read_rows(path, "elements", ["x", "gid"], stripe)
+        slabs = Slabs.balanced(comm, slab_axis, chunk["x"][:, slab_axis], chunk["gid"])
+        el = checkpoint.read_rows(path, "elements", names, (["x", "gid"], lambda d: slabs.owner(
+            d["x"][:, slab_axis], d["gid"]) == comm.rank))
+    mine = el["gid"]
+    bd = checkpoint.read_rows(path, "bonds", list(BOND_DATASETS), (["gid_i", "gid_j"], lambda d: np.isin(
+        d["gid_i"], mine) | np.isin(d["gid_j"], mine)))
+    n = len(mine)
+    el["inv_mass"] = 1.0 / el["mass"]
+    el["inv_inertia"] = 1.0 / el["inertia"]
+    elements = Elements.unpack([el], n, copy=False)
+    bonds = Bonds.unpack([bd], bool(c["damped"]), copy=False)
+    domain = _slab_comm(comm, slabs, c["ghost_range"], c["skin"], par)
+    if domain is None:
+        bonds.relink(elements.gid)
+    elif same:
+        elements, bonds = domain.borders(elements, bonds)
+        domain.x_build = el["x_build"].copy()    # same rebuild steps as the uninterrupted run
+    else:
+        elements, bonds = domain.setup(elements, bonds)
+    srt = np.argsort(el["gid"])     # the rows may have been reordered (migration sorts by gid)
+    order = srt[np.searchsorted(el["gid"][srt], elements.gid[:elements.n_owned])]
+    elements.f[:elements.n_owned] = el["f"][order]
+    elements.t[:elements.n_owned] = el["t"][order]
+    return _assemble(comm, deck, elements, bonds, domain, c, steps, step=int(meta["step"]),
+                     samples=columns_to_samples(meta["series"]))
 
 
 def _global_mean_axial_stiffness(comm, bonds, elements):
-    once = _counted_once(bonds, elements)
+    once = bonds.counted_once(elements.n_owned)
     s = comm.sum([bonds.ka[once].sum(), once.sum()])
     return float(s[0] / s[1])
 
@@ -145,7 +268,7 @@ def _wave_speed(comm, bonds, elements, axis):
 
     A global mean (every rank gets the same value, so the plate moves identically everywhere).
     """
-    once = _counted_once(bonds, elements)
+    once = bonds.counted_once(elements.n_owned)
     i, j = bonds.i[once], bonds.j[once]
     m = 0.5 * (elements.mass[i] + elements.mass[j])
     d = np.abs(elements.x[j, axis] - elements.x[i, axis]) / bonds.L0[once]
@@ -181,6 +304,47 @@ def loading_warning(case):
             f"lower loading.plate_speed by a factor {QUASI_STATIC_TRANSITS / ratio:.2g} or more")
 
 
+class CheckpointWriter:
+    """Operation writing checkpoints every ``every_steps`` steps and/or ``every_seconds`` seconds.
+
+    The seconds are measured on rank 0 and its decision is broadcast (every 10 steps), so all ranks
+    write together. Keeps the newest ``keep`` files in ``directory``.
+    """
+    every = 1
+
+    def __init__(self, case, directory, every_steps=0, every_seconds=0.0, keep=3, mode="auto"):
+        self.case, self.directory = case, directory
+        self.every_steps, self.every_seconds = int(every_steps), float(every_seconds)
+        self.keep, self.mode = int(keep), mode
+        self.last_time = time.monotonic()
+        self.last_step = case.sim.step_count
+        self.written = []
+
+    def __call__(self, sim):
+        due = self.every_steps > 0 and sim.step_count % self.every_steps == 0
+        if not due and self.every_seconds > 0 and sim.step_count % 10 == 0:
+            due = sim.comm.bcast(time.monotonic() - self.last_time >= self.every_seconds)
+        if due:
+            self.write(sim)
+
+    def write(self, sim):
+        """Write a checkpoint of the current step now (collective), unless one exists already."""
+        if self.written and self.last_step == sim.step_count:
+            return
+        comm = sim.comm
+        if comm.is_root:
+            os.makedirs(self.directory, exist_ok=True)
+        comm.barrier()
+        path = os.path.join(self.directory, checkpoint.checkpoint_name(sim.step_count))
+        groups, series, attrs = checkpoint_payload(self.case)
+        checkpoint.write_checkpoint(path, comm, groups, series, attrs, self.mode)
+        if comm.is_root:
+            checkpoint.prune(self.directory, self.keep)
+        self.last_time = time.monotonic()
+        self.last_step = sim.step_count
+        self.written.append(path)
+
+
 class SeriesSampler:
     """Operation: samples the reducer every ``every`` steps and hands the sample to sinks."""
 
@@ -208,19 +372,20 @@ class Progress:
         self.stream = stream
         self.t0 = time.perf_counter()
         self.last = -math.inf
-        self.end = case.sim.step_count + case.n_steps
+        self.start = case.sim.step_count
+        self.end = case.n_steps
 
     def __call__(self, s):
         now = time.perf_counter()
         if now - self.last < self.seconds and s["step"] < self.end:
             return
         self.last = now
-        done = s["step"] - (self.end - self.case.n_steps)
+        done = s["step"] - self.start
         rate = done * self.n_elements / max(now - self.t0, 1e-9)
         eta = (self.end - s["step"]) * self.n_elements / rate if rate > 0 else float("nan")
         eps = s["eps"][self.case.axis, self.case.axis]
         self.stream.write(
-            f"step {s['step']:>8d}/{self.end} ({100.0 * done / self.case.n_steps:5.1f} %)  "
+            f"step {s['step']:>8d}/{self.end} ({100.0 * done / max(self.end - self.start, 1):5.1f} %)  "
             f"t = {s['time']:.4e} s  eps = {eps:+.4e}  F = {s['force_fixed']:.4e} N  "
             f"{rate:.3e} element-steps/s  ETA {eta:6.1f} s\n")
         self.stream.flush()

@@ -167,11 +167,46 @@ COMPRESS_SCHEMA = {
         "initial_split": Field("balanced", fractions_or("balanced"),
                                "initial cuts: balanced, or cumulative element fractions (one per cut)"),
     },
+    "checkpoint": {
+        "every_steps": Field(0, number(lo=0, lo_open=False, integer=True), "steps between checkpoints; 0 = off"),
+        "every_seconds": Field(1800.0, number(lo=0.0, lo_open=False),
+                               "wall seconds between checkpoints; 0 = off"),
+        "keep": Field(3, number(lo=1, lo_open=False, integer=True), "how many checkpoints to keep"),
+        "at_end": Field(True, boolean, "write a checkpoint when the run ends"),
+        "driver": Field("auto", choice("auto", "mpio", "serial"),
+                        "HDF5 writing: collective MPI-IO, ranks taking turns, or auto"),
+    },
     "output": {
         "series_every": Field(0, optional(number(lo=0, integer=True)),
                               "steps between series samples; 0 = about 200 samples per run"),
+        "vtk_every": Field(0, number(lo=0, lo_open=False, integer=True),
+                           "steps between ParaView snapshots (DIR/paraview/pardem.pvd); 0 = none"),
     },
 }
+
+
+# Keys a restart may change: run length, output and parallel settings. Any other difference
+# would change the physics of the continued run, and the restart is refused.
+RESTART_MAY_CHANGE = {"loading.strain", "run.progress_seconds"}
+RESTART_MAY_CHANGE_SECTIONS = {"output", "checkpoint", "parallel"}
+
+
+def physics_differences(old, new):
+    """Keys (``section.key``) whose values differ between two checked decks and may not on restart."""
+    out = []
+    for section, table in new.items():
+        if section in RESTART_MAY_CHANGE_SECTIONS:
+            continue
+        for key, value in table.items():
+            name = f"{section}.{key}"
+            before = old.get(section, {}).get(key)
+            if name not in RESTART_MAY_CHANGE and _plain(before) != _plain(value):
+                out.append((name, before, value))
+    return out
+
+
+def _plain(v):
+    return [_plain(x) for x in v] if isinstance(v, (list, tuple)) else v
 
 
 def defaults(schema):
@@ -191,9 +226,10 @@ def parse_override(text):
     return section, key, value
 
 
-def load_deck(schema, path=None, overrides=()):
-    """Read ``path`` (TOML, may be None), apply overrides, check every field; returns a nested dict."""
-    raw = {}
+def load_deck(schema, path=None, overrides=(), base=None):
+    """Read ``path`` (TOML, may be None; else start from the deck ``base``), apply overrides, check
+    every field; returns a nested dict."""
+    raw = copy.deepcopy(base) if base is not None and path is None else {}
     if path is not None:
         try:
             with open(path, "rb") as fh:

@@ -83,9 +83,12 @@ class Elements:
         return {k: getattr(self, k)[rows] for k in ELEMENT_FIELDS}
 
     @classmethod
-    def unpack(cls, parts, n_owned):
-        """Elements from a list of ``pack`` dicts; the first ``n_owned`` rows are owned."""
-        data = {k: np.concatenate([p[k] for p in parts]) for k in ELEMENT_FIELDS}
+    def unpack(cls, parts, n_owned, copy=True):
+        """Elements from a list of ``pack`` dicts; the first ``n_owned`` rows are owned.
+
+        ``copy=False`` adopts the arrays of a single part (they must not be used elsewhere).
+        """
+        data = _join(parts, ELEMENT_FIELDS, copy)
         n = data["x"].shape[0]
         e = cls(f=np.zeros((n, 3)), t=np.zeros((n, 3)), rot=np.empty((n, 3, 3)), n_owned=n_owned, **data)
         e.refresh_rotations()
@@ -143,23 +146,34 @@ class Bonds:
         return {k: getattr(self, k)[rows] for k in BOND_FIELDS}
 
     @classmethod
-    def unpack(cls, parts, damped):
+    def unpack(cls, parts, damped, copy=True):
         """Bonds from ``pack`` dicts, duplicates (same gid) dropped, ordered by (gid_i, gid_j).
 
-        ``i, j`` are left at -1: call ``relink`` next.
+        ``i, j`` are left at -1: call ``relink`` next. ``copy=False`` adopts the arrays of a
+        single part when they are already unique and ordered.
         """
-        data = {k: np.concatenate([p[k] for p in parts]) for k in BOND_FIELDS}
+        data = _join(parts, BOND_FIELDS, copy)
         _, first = np.unique(data["gid"], return_index=True)
         keep = first[np.lexsort((data["gid_j"][first], data["gid_i"][first]))]
-        data = {k: v[keep] for k, v in data.items()}
+        if len(keep) != len(data["gid"]) or np.any(keep != np.arange(len(keep))):
+            data = {k: v[keep] for k, v in data.items()}
         n = len(keep)
         return cls(i=np.full(n, -1, np.int32), j=np.full(n, -1, np.int32), damped=damped, **data)
+
+    def counted_once(self, n_owned):
+        """Mask of the bonds this rank counts in global sums and files: those whose first
+        (lower-gid) end it owns. A bond held by two ranks is thus counted exactly once."""
+        return self.i < n_owned
 
     def relink(self, element_gids):
         """Rebuild ``i, j`` from the end global ids and the rows' ``element_gids``.
 
         Raises KeyError naming a missing end, which means the rank lacks an element it needs.
         """
+        if len(element_gids) == 0:
+            if self.n:
+                raise KeyError(f"bond end gid {int(self.gid_i[0])} is not held by this rank")
+            return
         order = np.argsort(element_gids, kind="stable")
         sorted_g = element_gids[order]
         for ends, out in ((self.gid_i, self.i), (self.gid_j, self.j)):
@@ -173,6 +187,12 @@ class Bonds:
     def nbytes(self) -> int:
         return sum(getattr(self, f.name).nbytes for f in fields(self) if f.name not in ("extra", "damped"))
 
+
+
+def _join(parts, names, copy):
+    if len(parts) == 1 and not copy:
+        return {k: np.ascontiguousarray(parts[0][k]) for k in names}
+    return {k: np.concatenate([p[k] for p in parts]) for k in names}
 
 
 @njit(cache=True, error_model="numpy")

@@ -21,9 +21,12 @@ def ordered_lattice(box, radius, tilt_deg=0.0):
         raise ValueError("box is smaller than one element diameter along some axis")
     # untilted lattice: sites R + 2R k; the centre site is index floor(count/2)
     centre = R + step * np.floor(counts / 2)
-    half = int(np.ceil(np.linalg.norm(box) / step)) + 1
-    k = np.arange(-half, half + 1)
-    I, J, K = np.meshgrid(k, k, k, indexing="ij")
+    # index range along each lattice axis: the box corners projected on it
+    corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)]) * box
+    proj = (corners - centre) @ frame.T / step
+    lo_i = np.floor(proj.min(axis=0)).astype(np.int64) - 1
+    hi_i = np.ceil(proj.max(axis=0)).astype(np.int64) + 1
+    I, J, K = np.meshgrid(*(np.arange(a, b + 1) for a, b in zip(lo_i, hi_i)), indexing="ij")
     idx = np.stack([I.ravel(), J.ravel(), K.ravel()], axis=1)
     pos = centre + step * (idx @ frame)
     tol = 0.01 * R

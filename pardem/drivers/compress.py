@@ -15,12 +15,25 @@ import numpy as np
 
 import pardem
 from pardem.cli import EXIT_UNSTABLE, driver_parser, fail_usage, read_deck
-from pardem.compression import Progress, SeriesSampler, build_case, loading_warning, measure
+from pardem.compression import (CheckpointWriter, Progress, SeriesSampler, build_case, loading_warning,
+                                measure, restore_case)
+from pardem.io import checkpoint
+from pardem.io.paraview import ParaViewWriter
 from pardem.config import COMPRESS_SCHEMA, DeckError
 from pardem.io.series import SeriesCSV
 from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator, report_and_abort
 from pardem.simulation import FaultInjection, InstabilityError
+
+
+def _default_out(comm, restart):
+    """``runs/compress-<timestamp>``, or the run directory of the checkpoint being continued."""
+    if restart:
+        parent = os.path.dirname(os.path.abspath(restart))
+        if os.path.basename(parent) == "checkpoints":
+            return os.path.dirname(parent)
+    stamp = comm.bcast(datetime.datetime.now().strftime("%Y%m%d-%H%M%S"))
+    return os.path.join("runs", f"compress-{stamp}")
 
 
 def main(argv=None):
@@ -36,16 +49,18 @@ def main(argv=None):
 
 
 def run(comm, args):
-    deck = read_deck(comm, COMPRESS_SCHEMA, args)
     t_start = time.perf_counter()
     try:
-        case = build_case(comm, deck, steps=args.steps)
-    except DeckError as err:
+        if args.restart:
+            meta = checkpoint.inspect(args.restart)
+            deck = read_deck(comm, COMPRESS_SCHEMA, args, base=meta["deck"])
+            case = restore_case(comm, deck, args.restart, steps=args.steps)
+        else:
+            deck = read_deck(comm, COMPRESS_SCHEMA, args)
+            case = build_case(comm, deck, steps=args.steps)
+    except (DeckError, checkpoint.CheckpointError) as err:
         fail_usage(comm, str(err))
-    out = args.out
-    if out is None:
-        stamp = comm.bcast(datetime.datetime.now().strftime("%Y%m%d-%H%M%S"))
-        out = os.path.join("runs", f"compress-{stamp}")
+    out = args.out or _default_out(comm, args.restart)
     sim = case.sim
     e = sim.elements
     n_el, n_bonds = case.n_elements, case.n_bonds
@@ -55,10 +70,13 @@ def run(comm, args):
     if comm.is_root:
         os.makedirs(out, exist_ok=True)
         series = SeriesCSV(os.path.join(out, "series.csv"))
+        for s in case.samples:          # a restart writes the series from the run's start
+            series.append(s)
         sinks.append(series.append)
         print(f"pardem {pardem.__version__}: compression along {'xyz'[case.axis]}, {n_el} elements, "
               f"{n_bonds} bonds, {comm.size} rank(s)\n"
-              f"dt = {sim.dt:.4e} s (critical {case.dt_critical:.4e} s), {case.n_steps} steps, output {out}",
+              f"dt = {sim.dt:.4e} s (critical {case.dt_critical:.4e} s), steps {sim.step_count} to "
+              f"{case.n_steps}, output {out}" + (f", restarted from {args.restart}" if args.restart else ""),
               flush=True)
         warning = loading_warning(case)
         if warning:
@@ -66,25 +84,40 @@ def run(comm, args):
         if not args.quiet:
             sinks.append(Progress(case, n_el, deck["run"]["progress_seconds"], sys.stdout))
     sampler = SeriesSampler(case, every, sinks)
-    sampler(sim)   # the initial state
+    if sim.step_count == 0:
+        sampler(sim)   # the initial state
+    ck = deck["checkpoint"]
+    writer = CheckpointWriter(case, os.path.join(out, "checkpoints"), ck["every_steps"],
+                              ck["every_seconds"], ck["keep"], ck["driver"])
+    operations = [sampler, writer]
+    if deck["output"]["vtk_every"]:
+        operations.append(ParaViewWriter(os.path.join(out, "paraview"), comm, deck["output"]["vtk_every"],
+                                         resume_step=sim.step_count if args.restart else None, dt=sim.dt))
+        if sim.step_count == 0:
+            operations[-1](sim)    # the initial state
+    fault = FaultInjection.from_environment()
+    if fault:
+        operations.append(fault)
     t_run = time.perf_counter()
+    steps_run = case.steps_left
     try:
-        fault = FaultInjection.from_environment()
-        sim.run(case.n_steps, operations=[sampler] + ([fault] if fault else []))
+        sim.run(steps_run, operations=operations)
     except InstabilityError as err:
         if comm.is_root:
-            sys.stderr.write(f"pardem: error: {err}\n")
+            sys.stderr.write(f"pardem: error: {err}; the last checkpoint (if any) is intact\n")
         raise SystemExit(EXIT_UNSTABLE)
     finally:
         if series is not None:
             series.close()
+    if ck["at_end"]:
+        writer.write(sim)
     wall_run = time.perf_counter() - t_run
     result = measure(case)
     per_rank = sim.domain.report(sim) if sim.domain is not None else [
         {"rank": 0, "owned_elements": e.n_owned, "ghost_elements": 0, "bonds_held": sim.bonds.n,
          "seconds_computing": sim.seconds_computing, "seconds_communicating": 0.0,
          "rebuilds": 0, "rebalances": 0}]
-    counts = comm.sum([sim.elements.n_owned, int(np.count_nonzero(sim.bonds.i < sim.elements.n_owned))])
+    counts = comm.sum([sim.elements.n_owned, int(np.count_nonzero(sim.bonds.counted_once(sim.elements.n_owned)))])
     if comm.is_root:
         summary = {
             "pardem_version": pardem.__version__,
@@ -102,7 +135,8 @@ def run(comm, args):
             "young_modulus_analytic": case.analytic_young,
             "wall_seconds": time.perf_counter() - t_start,
             "run_seconds": wall_run,
-            "element_steps_per_second": n_el * case.n_steps / wall_run,
+            "element_steps_per_second": n_el * steps_run / wall_run,
+            "restarted_from": args.restart, "checkpoints": writer.written,
             "bytes_per_element": (sim.elements.nbytes() + sim.bonds.nbytes()) / max(sim.elements.n_owned, 1),
             "deck": deck,
         }

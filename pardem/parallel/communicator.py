@@ -45,6 +45,14 @@ class Communicator:
     def any(self, flag: bool) -> bool:
         return bool(self.comm.allreduce(bool(flag), op=self._MPI.LOR)) if self.size > 1 else bool(flag)
 
+    def allgather(self, obj):
+        """List of every rank's ``obj`` (pickled; for small metadata)."""
+        return self.comm.allgather(obj) if self.size > 1 else [obj]
+
+    def gather(self, obj, root=0):
+        """List of every rank's ``obj`` on ``root`` (None elsewhere)."""
+        return self.comm.gather(obj, root=root) if self.size > 1 else [obj]
+
     def bcast(self, obj, root=0):
         return self.comm.bcast(obj, root=root) if self.size > 1 else obj
 

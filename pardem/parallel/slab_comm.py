@@ -243,8 +243,8 @@ class SlabComm:
     def _loads(self, sim):
         if self.balance_by == "time":
             busy = sim.seconds_computing - self._compute_mark
-            return np.array(self.mpi.allgather(busy))
-        return np.array(self.mpi.allgather(sim.elements.n_owned), dtype=float)
+            return np.array(self.comm.allgather(busy))
+        return np.array(self.comm.allgather(sim.elements.n_owned), dtype=float)
 
     def _unbalanced(self, sim):
         loads = self._loads(sim)
@@ -270,4 +270,4 @@ class SlabComm:
                "seconds_computing": float(sim.seconds_computing),
                "seconds_communicating": float(self.seconds_communicating),
                "rebuilds": self.rebuilds, "rebalances": self.rebalances}
-        return self.mpi.allgather(row)
+        return self.comm.allgather(row)
