@@ -160,35 +160,26 @@ def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1
     return energy
 
 
-@njit(cache=True, error_model="numpy")
-def beam_forces(bi, bj, x, v, w, rot, f, t, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1, u2, p2):
-    """Add the forces and moments of all bonds, with damping, to ``f`` and ``t``.
+def _bond_loop(damped):
+    """The loop over all bonds with damping compiled in or out (``damped`` is frozen as a constant)."""
+    @njit(cache=True, error_model="numpy")
+    def loop(bi, bj, x, v, w, rot, f, t, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1, u2, p2):
+        out = np.empty(9)
+        energy = 0.0
+        for b in range(bi.shape[0]):
+            i = bi[b]
+            j = bj[b]
+            energy += beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t,
+                                u1, p1, u2, p2, out, damped)
+            _scatter(i, j, f, t, out)
+        return energy
+    return loop
 
-    Rows may be owned or ghost. Returns the total elastic energy of the bonds [J].
-    """
-    out = np.empty(9)
-    energy = 0.0
-    for b in range(bi.shape[0]):
-        i = bi[b]
-        j = bj[b]
-        energy += beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t,
-                            u1, p1, u2, p2, out, True)
-        _scatter(i, j, f, t, out)
-    return energy
 
-
-@njit(cache=True, error_model="numpy")
-def beam_forces_elastic(bi, bj, x, v, w, rot, f, t, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1, u2, p2):
-    """``beam_forces`` for bonds without damping (all ``tau`` zero): the same, faster."""
-    out = np.empty(9)
-    energy = 0.0
-    for b in range(bi.shape[0]):
-        i = bi[b]
-        j = bj[b]
-        energy += beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t,
-                            u1, p1, u2, p2, out, False)
-        _scatter(i, j, f, t, out)
-    return energy
+# Add the forces and moments of all bonds to f and t (rows may be owned or ghost); return the total
+# elastic energy of the bonds [J]. The elastic loop is for bonds whose tau are all zero.
+beam_forces = _bond_loop(True)
+beam_forces_elastic = _bond_loop(False)
 
 
 @njit(cache=True, inline="always")
