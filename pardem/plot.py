@@ -104,8 +104,8 @@ def plot(series, summary, out):
     left.grid(True, lw=0.4, alpha=0.5)
     left.legend(loc="upper left", fontsize="small")
 
-    for b, color in zip(others, ("C3", "C4")):
-        right.plot(strain, 100.0 * series[f"eps_{b}{b}"], color=color, lw=1.5,
+    for b, color, ls in zip(others, ("C3", "C4"), ("-", "--")):   # dashed: visible where they coincide
+        right.plot(strain, 100.0 * series[f"eps_{b}{b}"], color=color, ls=ls, lw=1.5,
                    label=rf"$\varepsilon_{{{b}{b}}}$")
     right.axhline(0.0, color="0.6", lw=0.6)
     right.set_xlabel(rf"axial strain $-\varepsilon_{{{a}{a}}}$ [%]")
@@ -132,6 +132,8 @@ def main(argv=None):
         plot(series, summary, out)
     except OSError as err:
         fail_usage(None, f"cannot write {out}: {err.strerror or err}")
+    except ValueError as err:      # e.g. an image format matplotlib does not know
+        fail_usage(None, f"cannot write {out}: {err}")
     print(f"wrote {out}")
     return EXIT_OK
 

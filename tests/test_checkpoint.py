@@ -18,6 +18,7 @@ import pytest
 from pardem.drivers import compress
 from pardem.io.checkpoint import CheckpointError, inspect
 from pardem.io.series import read_series
+from pardem.io.series_h5 import read_series_h5
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 EVERY = ["--set", "checkpoint.every_steps=500", "--set", "parallel.skin=0.02e-3"]
@@ -75,6 +76,8 @@ def test_restart_same_ranks_is_bit_for_bit(reference, tmp_path, n):
     p = driver(n, ["--restart", str(ref / MID), "--out", str(tmp_path / "r")])
     assert p.returncode == 0, p.stderr
     assert filecmp.cmp(ref / "series.csv", tmp_path / "r" / "series.csv", shallow=False)
+    a, b = read_series_h5(ref / "series.h5"), read_series_h5(tmp_path / "r" / "series.h5")
+    assert list(a) == list(b) and all(np.array_equal(a[k], b[k]) for k in a)
     assert_same_state(ref / END, tmp_path / "r" / END)
     s = json.loads((tmp_path / "r" / "summary.json").read_text())
     assert s["steps"] == 2090 and s["restarted_from"].endswith("checkpoint-0000001500.h5")

@@ -6,6 +6,7 @@
 Writes ``DIR/summary.json`` and ``DIR/series.csv`` (see README). With no options it runs the default
 case: the 10 mm cube of 21^3 elements compressed along x to 0.5 % nominal strain.
 """
+import contextlib
 import datetime
 import os
 import sys
@@ -21,6 +22,7 @@ from pardem.io import checkpoint
 from pardem.io.paraview import ParaViewWriter
 from pardem.config import COMPRESS_SCHEMA, DeckError
 from pardem.io.series import SeriesCSV
+from pardem.io.series_h5 import SeriesH5
 from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator, report_and_abort
 from pardem.simulation import FaultInjection, InstabilityError
@@ -49,6 +51,11 @@ def main(argv=None):
 
 
 def run(comm, args):
+    with contextlib.ExitStack() as files:   # closes the series files whatever happens
+        return _run(comm, args, files)
+
+
+def _run(comm, args, files):
     t_start = time.perf_counter()
     try:
         if args.restart:
@@ -66,13 +73,16 @@ def run(comm, args):
     n_el, n_bonds = case.n_elements, case.n_bonds
     every = deck["output"]["series_every"] or max(1, case.n_steps // 200)
     sinks = []
-    series = None
     if comm.is_root:
         os.makedirs(out, exist_ok=True)
-        series = SeriesCSV(os.path.join(out, "series.csv"))
-        for s in case.samples:          # a restart writes the series from the run's start
-            series.append(s)
-        sinks.append(series.append)
+        # a restart writes the series from the run's start
+        csv = SeriesCSV(os.path.join(out, "series.csv"))
+        files.callback(csv.close)
+        h5 = SeriesH5(os.path.join(out, "series.h5"), samples=case.samples)
+        files.callback(h5.close)
+        for s in case.samples:
+            csv.append(s)
+        sinks += [csv.append, h5.append]
         print(f"pardem {pardem.__version__}: compression along {'xyz'[case.axis]}, {n_el} elements, "
               f"{n_bonds} bonds, {comm.size} rank(s)\n"
               f"dt = {sim.dt:.4e} s (critical {case.dt_critical:.4e} s), steps {sim.step_count} to "
@@ -106,9 +116,7 @@ def run(comm, args):
         if comm.is_root:
             sys.stderr.write(f"pardem: error: {err}; the last checkpoint (if any) is intact\n")
         raise SystemExit(EXIT_UNSTABLE)
-    finally:
-        if series is not None:
-            series.close()
+    files.close()
     if ck["at_end"]:
         writer.write(sim)
     wall_run = time.perf_counter() - t_run
@@ -148,7 +156,7 @@ def run(comm, args):
         if np.isfinite(case.analytic_young):
             line += (f";  analytic pi/4 E r^2 = {case.analytic_young / 1e6:.3f} MPa "
                      f"({100 * (E / case.analytic_young - 1):+.2f} %)")
-        print(line + f"\n{nus}\nwrote {out}/summary.json and {out}/series.csv "
+        print(line + f"\n{nus}\nwrote {out}/summary.json, series.csv and series.h5 "
               f"in {summary['wall_seconds']:.1f} s ({summary['element_steps_per_second']:.3e} element-steps/s)",
               flush=True)
     return 0

@@ -1,0 +1,195 @@
+"""The HDF5 series (against the CSV series) and the force-strain plot of a compress run."""
+import json
+import struct
+import subprocess
+import sys
+import textwrap
+
+import h5py
+import numpy as np
+import pytest
+
+from pardem import plot
+from pardem.io.series import SERIES_COLUMNS, SERIES_UNITS, SeriesCSV, read_series
+from pardem.io.series_h5 import SeriesH5, read_series_h5
+
+
+def synthetic_samples(n, seed=0, step0=0):
+    """``Reducer.sample``-like dicts with awkward floats (no round numbers, tiny and huge values)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(n):
+        H = rng.normal(scale=10.0 ** rng.integers(-12, 0), size=(3, 3))
+        out.append({"time": (step0 + k) * 1.2345678901234567e-7, "step": step0 + 7 * k,
+                    "plate_displacement": np.float64(rng.uniform() * 1e-5),
+                    "force_fixed": float(rng.normal() * 1e3), "force_moving": float(rng.normal() * 1e-9),
+                    "H": H, "eps": 0.5 * (H + H.T)})
+    return out
+
+
+def test_round_trip_matches_csv(tmp_path):
+    """Every value of every column equals the CSV's (bit for bit); dtypes, units and attributes."""
+    samples = synthetic_samples(37)
+    csv, h5 = SeriesCSV(tmp_path / "series.csv"), SeriesH5(tmp_path / "series.h5")
+    for s in samples:
+        csv.append(s)
+        h5.append(s)
+    csv.close()
+    h5.close()
+    h5.close()   # idempotent
+    c, h = read_series(tmp_path / "series.csv"), read_series_h5(tmp_path / "series.h5")
+    assert list(h) == list(c) == list(SERIES_COLUMNS)
+    for k in SERIES_COLUMNS:
+        assert len(h[k]) == len(samples)
+        np.testing.assert_array_equal(h[k], np.array(c[k]), err_msg=k)
+    assert h["step"].dtype == np.int64 and h["time"].dtype == np.float64
+    np.testing.assert_array_equal(h["eps_xy"], [s["eps"][0, 1] for s in samples])
+    # plain h5py sees the same layout
+    with h5py.File(tmp_path / "series.h5", "r") as f:
+        assert list(f.attrs["columns"]) == list(SERIES_COLUMNS)
+        assert "plate" in f.attrs["description"]
+        assert sorted(f.keys()) == sorted(SERIES_COLUMNS)
+        for name, unit in zip(SERIES_COLUMNS, SERIES_UNITS):
+            ds = f[name]
+            assert ds.ndim == 1 and ds.maxshape == (None,) and ds.shape == (len(samples),)
+            assert ds.attrs["units"] == unit
+            assert ds.dtype == (np.int64 if name == "step" else np.float64)
+
+
+def test_empty_file_and_context_manager(tmp_path):
+    with SeriesH5(tmp_path / "series.h5"):
+        pass
+    h = read_series_h5(tmp_path / "series.h5")
+    assert list(h) == list(SERIES_COLUMNS) and all(len(v) == 0 for v in h.values())
+
+
+def test_resume_from_samples(tmp_path):
+    """``samples=`` writes the kept rows first; appends continue after them; an old file is replaced."""
+    first, later = synthetic_samples(10, seed=1), synthetic_samples(5, seed=2, step0=70)
+    path = tmp_path / "series.h5"
+    with SeriesH5(path) as h5:           # the interrupted run wrote more rows than the checkpoint kept
+        for s in first + synthetic_samples(3, seed=3, step0=1000):
+            h5.append(s)
+    with SeriesH5(path, samples=first) as h5:
+        assert h5.n_rows == len(first)
+        assert len(read_series_h5(path)["step"]) == len(first)   # flushed before any append
+        for s in later:
+            h5.append(s)
+    with SeriesH5(tmp_path / "straight.h5") as h5:
+        for s in first + later:
+            h5.append(s)
+    resumed, straight = read_series_h5(path), read_series_h5(tmp_path / "straight.h5")
+    for k in SERIES_COLUMNS:
+        np.testing.assert_array_equal(resumed[k], straight[k], err_msg=k)
+    assert list(resumed["step"]) == [s["step"] for s in first + later]
+
+
+def test_rows_survive_a_crash(tmp_path):
+    """A writer killed without close (no atexit, no destructor) leaves its appended rows readable."""
+    path = tmp_path / "series.h5"
+    script = textwrap.dedent(f"""
+        import os
+        import numpy as np
+        from pardem.io.series_h5 import SeriesH5
+        w = SeriesH5({str(path)!r})
+        for k in range(4):
+            H = np.full((3, 3), 1e-4 * k)
+            w.append({{"time": 0.5 * k, "step": k, "plate_displacement": 1e-6 * k, "force_fixed": 2.0 * k,
+                       "force_moving": 3.0 * k, "H": H, "eps": H}})
+        os._exit(9)
+    """)
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 9, r.stderr
+    h = read_series_h5(path)
+    assert list(h["step"]) == [0, 1, 2, 3]
+    np.testing.assert_array_equal(h["force_moving"], [0.0, 3.0, 6.0, 9.0])
+
+
+def png_size(path):
+    """(width, height) from the PNG signature and IHDR chunk; fails on anything else."""
+    head = path.read_bytes()[:24]
+    assert head[:8] == b"\x89PNG\r\n\x1a\n", "not a PNG"
+    assert head[12:16] == b"IHDR"
+    return struct.unpack(">II", head[16:24])
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    from pardem.drivers import compress
+    out = tmp_path_factory.mktemp("compress") / "run"
+    assert compress.main(["--out", str(out), "--quiet", "--set", "domain.box=[0.003,0.003,0.003]",
+                          "--set", "domain.radius=0.25e-3"]) == 0
+    return out
+
+
+def test_plot_of_a_compress_run(run_dir, capsys):
+    pytest.importorskip("matplotlib")
+    assert plot.main([str(run_dir)]) == 0
+    png = run_dir / "force_strain.png"
+    w, h = png_size(png)
+    assert w >= 800 and h >= 300 and w > h            # two panels side by side
+    assert png.stat().st_size > 20_000                # curves, labels and legend, not a blank canvas
+    assert str(png) in capsys.readouterr().out
+
+
+def test_plot_from_h5_only_and_out_option(run_dir, tmp_path):
+    """Without series.csv the plot reads series.h5; --out picks the file."""
+    pytest.importorskip("matplotlib")
+    d = tmp_path / "h5run"
+    d.mkdir()
+    (d / "summary.json").write_text((run_dir / "summary.json").read_text())
+    csv = read_series(run_dir / "series.csv")
+    eps_cols = ("eps_xx", "eps_yy", "eps_zz", "eps_xy", "eps_xz", "eps_yz")
+    samples = []
+    for k in range(len(csv["step"])):
+        xx, yy, zz, xy, xz, yz = (csv[c][k] for c in eps_cols)
+        eps = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+        samples.append({"step": int(csv["step"][k]), "time": csv["time"][k], "eps": eps, "H": eps,
+                        **{c: csv[c][k] for c in ("plate_displacement", "force_fixed", "force_moving")}})
+    SeriesH5(d / "series.h5", samples=samples).close()
+    out = tmp_path / "other.png"
+    assert plot.main([str(d), "--out", str(out)]) == 0
+    assert png_size(out)[0] >= 800
+    assert not (d / "force_strain.png").exists()
+
+
+@pytest.mark.parametrize("case", ["no_dir", "no_summary", "no_series", "bad_json", "empty_series"])
+def test_plot_bad_dir_is_one_line_exit_2(tmp_path, capsys, case):
+    d = tmp_path / "run"
+    if case != "no_dir":
+        d.mkdir()
+    if case in ("no_series", "empty_series"):
+        (d / "summary.json").write_text(json.dumps({"cross_section": 1e-5, "loading_axis": "x"}))
+    if case == "no_summary":
+        SeriesCSV(d / "series.csv").close()
+    if case == "bad_json":
+        (d / "summary.json").write_text("{not json")
+    if case == "empty_series":
+        SeriesCSV(d / "series.csv").close()
+    with pytest.raises(SystemExit) as exc:
+        plot.main([str(d)])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pardem: error: ") and err.count("\n") == 1, err
+
+
+def test_plot_without_matplotlib(run_dir, tmp_path, capsys, monkeypatch):
+    """matplotlib missing: the one documented line and exit 2, nothing written."""
+    for name in list(sys.modules):
+        if name == "matplotlib" or name.startswith("matplotlib."):
+            monkeypatch.delitem(sys.modules, name)
+    monkeypatch.setitem(sys.modules, "matplotlib", None)     # makes ``import matplotlib`` fail
+    out = tmp_path / "x.png"
+    with pytest.raises(SystemExit) as exc:
+        plot.main([str(run_dir), "--out", str(out)])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err == \
+        "pardem: error: matplotlib is not installed: pip install 'pardem[plot]'\n"
+    assert not out.exists()
+
+
+def test_plot_help(capsys):
+    with pytest.raises(SystemExit) as exc:
+        plot.main(["--help"])
+    assert exc.value.code == 0
+    assert "DIR" in capsys.readouterr().out
