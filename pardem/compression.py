@@ -176,6 +176,7 @@ def checkpoint_payload(case):
     series = samples_to_columns(case.samples)
     slabs = sim.domain.slabs if sim.domain is not None else None
     attrs = {"step": sim.step_count, "time": sim.time, "deck": case.deck, "constants": case.constants,
+             "plate_positions": sim.plates.positions.copy(), "plate_velocities": sim.plates.velocities(sim.time),
              "rng_state": {"generator": None}, "slab_axis": case.slab_axis,
              "slab_cut_s": slabs.cut_s if slabs is not None else np.zeros(0),
              "slab_cut_g": slabs.cut_g if slabs is not None else np.zeros(0, dtype=np.int64)}

@@ -246,6 +246,12 @@ class Plates:
             lo, hi = (mid, hi) if self.travel(mid) < distance else (lo, mid)
         return hi
 
+    def velocities(self, time):
+        """Velocities [m/s] of the plates along the axis at ``time`` (the fixed one is 0)."""
+        T, v = self.ramp_time, self.speed
+        moving = v if time >= T else 0.5 * v * (1.0 - np.cos(np.pi * time / T))
+        return np.array([0.0, -moving])
+
     def move_to(self, time):
         self.positions[1] = self.initial[1] - self.travel(time)
 

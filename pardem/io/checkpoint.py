@@ -12,6 +12,7 @@ Layout (``LAYOUT_VERSION`` 1), readable with plain h5py::
         u1, p1, u2, p2 (body-frame bond axis and twist reference of each end), young [Pa], radius [m]
     /series/<column>   [S]       the reducer's samples so far (see pardem.io.series)
     attributes of /: layout_version, pardem_version, complete (1 once fully written), step, time [s],
+        plate_positions [m] and plate_velocities [m/s] along the loading axis (fixed, moving),
         n_ranks, owned_counts [n_ranks], n_elements, n_bonds, rng_state (JSON; pardem's physics draws
         no random numbers yet, so {"generator": null}), deck (JSON of the checked deck), constants (JSON: dt,
         plate motion and the other derived run constants), slab_cut_s, slab_cut_g, slab_axis
