@@ -276,6 +276,17 @@ def _free_oscillation(e, b, omega_d, measure, periods=4.5, per_period=400):
     return np.array(out), dt
 
 
+def _assert_damped_release(s, dt, A, omega, zeta):
+    """The signal ``s`` follows the damped oscillator released from rest at ``A``, and its
+    logarithmic decrement gives back the damping ratio."""
+    t = dt * np.arange(len(s))
+    omega_d = omega * np.sqrt(1.0 - zeta**2)
+    exact = A * np.exp(-zeta * omega * t) * (np.cos(omega_d * t)
+                                              + zeta / np.sqrt(1 - zeta**2) * np.sin(omega_d * t))
+    assert np.abs(s - exact).max() < 0.02 * A
+    assert _log_decrement_ratio(s) == pytest.approx(zeta, rel=0.03)
+
+
 @pytest.mark.parametrize("zeta", [0.05, 0.2])
 def test_axial_damping_ratio(zeta):
     """Free pair, axial release: decay and frequency of the damped oscillator with m* and c."""
@@ -289,11 +300,7 @@ def test_axial_damping_ratio(zeta):
     A = 1e-5 * L0
     e.x[1] += A * n
     s, dt = _free_oscillation(e, b, omega_d, lambda el: np.linalg.norm(el.x[1] - el.x[0]) - L0)
-    t = dt * np.arange(len(s))
-    exact = A * np.exp(-zeta * omega * t) * (np.cos(omega_d * t)
-                                              + zeta / np.sqrt(1 - zeta**2) * np.sin(omega_d * t))
-    assert np.abs(s - exact).max() < 0.02 * A
-    assert _log_decrement_ratio(s) == pytest.approx(zeta, rel=0.03)
+    _assert_damped_release(s, dt, A, omega, zeta)
     # the total momentum of the free pair stays zero
     p = (e.mass[:, None] * e.v).sum(axis=0)
     assert np.abs(p).max() < 1e-12 * m_red * omega * A
@@ -318,11 +325,7 @@ def test_twist_damping_ratio(zeta):
         return 2.0 * np.arctan2(qr[1:] @ n, qr[0])
 
     s, dt = _free_oscillation(e, b, omega_d, twist)
-    t = dt * np.arange(len(s))
-    exact = A * np.exp(-zeta * omega * t) * (np.cos(omega_d * t)
-                                              + zeta / np.sqrt(1 - zeta**2) * np.sin(omega_d * t))
-    assert np.abs(s - exact).max() < 0.02 * A
-    assert _log_decrement_ratio(s) == pytest.approx(zeta, rel=0.03)
+    _assert_damped_release(s, dt, A, omega, zeta)
     # pure twist: no force, the centres stay put
     assert np.abs(e.x - e.x0).max() < 1e-12 * L0
 

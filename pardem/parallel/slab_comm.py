@@ -29,7 +29,7 @@ from numba import njit
 from pardem.parallel.slabs import Slabs, imbalance
 from pardem.state import Bonds, Elements
 
-_TAG_FORWARD = 71
+_TAG_FORWARD, _TAG_EXCHANGE, _TAG_BORDERS = 71, 72, 73
 GHOST_WIDTH = 13   # doubles per ghost per step: x, v, w (3 each), q (4)
 
 
@@ -144,7 +144,7 @@ class SlabComm:
                 gids = cur["gid"][mask]
                 touch = np.isin(cur_bonds["gid_i"], gids) | np.isin(cur_bonds["gid_j"], gids)
                 out[nb] = (_select(cur, mask), _select(cur_bonds, touch))
-            got = self._swap(out)
+            got = [g for g in self._swap(out, _TAG_EXCHANGE).values() if g is not None]
             cur = _concat([_select(cur, owner == self.comm.rank)] + [g[0] for g in got])
             cur_bonds = _concat([cur_bonds] + [g[1] for g in got])
         else:
@@ -153,13 +153,14 @@ class SlabComm:
         mine = np.isin(cur_bonds["gid_i"], cur["gid"]) | np.isin(cur_bonds["gid_j"], cur["gid"])
         return Elements.unpack([cur], len(cur["gid"])), Bonds.unpack([_select(cur_bonds, mine)], bonds.damped)
 
-    def _swap(self, out):
-        """Send ``out[neighbour]`` (pickled) to each neighbour, receive theirs; list of received."""
-        reqs = [self.mpi.isend(out.get(nb), dest=nb, tag=72) for nb in self.neighbours]
-        got = [self.mpi.recv(source=nb, tag=72) for nb in self.neighbours]
+    def _swap(self, out, tag):
+        """Send ``out[neighbour]`` (pickled; None if absent) to each neighbour and receive what it
+        sent: {neighbour: object}. Used at rebuilds only; the per-step exchange is ``forward``."""
+        reqs = [self.mpi.isend(out.get(nb), dest=nb, tag=tag) for nb in self.neighbours]
+        got = {nb: self.mpi.recv(source=nb, tag=tag) for nb in self.neighbours}
         for r in reqs:
             r.wait()
-        return [g for g in got if g is not None]
+        return got
 
     def borders(self, elements, bonds):
         """Ghost rows from the neighbours within ``ghost_range`` of each boundary; relinks bonds."""
@@ -176,7 +177,7 @@ class SlabComm:
             rows[self.left] = np.nonzero(s < lo + self.ghost_range)[0]
         if self.right is not None:
             rows[self.right] = np.nonzero(s >= hi - self.ghost_range)[0]
-        got = self._swap_in_order({nb: e.pack(r) for nb, r in rows.items()})
+        got = self._swap({nb: e.pack(r) for nb, r in rows.items()}, _TAG_BORDERS)
         parts = [e.pack(slice(0, n))]
         start = n
         self.send_rows, self.recv_start, self.recv_count = {}, {}, {}
@@ -197,13 +198,6 @@ class SlabComm:
         self._recv_buf = {nb: np.empty((self.recv_count[nb], GHOST_WIDTH)) for nb in self.neighbours}
         self.x_build = new.x[:n].copy()
         return new, bonds
-
-    def _swap_in_order(self, out):
-        reqs = [self.mpi.isend(out[nb], dest=nb, tag=73) for nb in self.neighbours]
-        got = {nb: self.mpi.recv(source=nb, tag=73) for nb in self.neighbours}
-        for r in reqs:
-            r.wait()
-        return got
 
     # -- every step ---------------------------------------------------------------------------
 
