@@ -27,6 +27,7 @@ import numpy as np
 from numba import njit
 
 from pardem.parallel.slabs import Slabs, imbalance
+from pardem.physics.neighbours import max_displacement2
 from pardem.state import Bonds, Elements
 
 _TAG_FORWARD, _TAG_EXCHANGE, _TAG_BORDERS = 71, 72, 73
@@ -55,16 +56,6 @@ def _unpack_forward(buf, start, x, v, w, q):
             w[r, d] = buf[k, 6 + d]
         for d in range(4):
             q[r, d] = buf[k, 9 + d]
-
-
-@njit(cache=True, error_model="numpy")
-def max_displacement2(x, x_ref, n):
-    m = 0.0
-    for k in range(n):
-        d = (x[k, 0] - x_ref[k, 0]) ** 2 + (x[k, 1] - x_ref[k, 1]) ** 2 + (x[k, 2] - x_ref[k, 2]) ** 2
-        if not d <= m:
-            m = d
-    return m
 
 
 def _select(arrays, rows):
