@@ -1,0 +1,171 @@
+"""Kinematics shared by the sphere-sphere contact laws (PHYSICS.md section 8).
+
+Used by ``hertz_mindlin`` and ``linear_contact``; every function is a small inline Numba kernel on
+scalars, so a contact law is written as a fixed sequence of calls (geometry, relative motion,
+normal law, tangential history with Coulomb cap, output).
+
+Conventions (the same in every contact law of pardem)
+-----------------------------------------------------
+* A pair ``(i, j)`` is computed in that order; pair lists order it by global id (``gid_i < gid_j``)
+  so that two ranks holding the pair get bitwise-identical results (STYLE pattern 7).
+* ``d = (x_j - x_i) + s`` with ``s`` [m] the periodic image shift of the pair (zero without periodicity;
+  grouped this way it is exactly antisymmetric, so two ranks computing a pair agree bitwise);
+  ``dist = |d|``, unit normal ``n = d / dist`` points from i to j.
+* Overlap ``delta = R_i + R_j - dist`` [m], contact when ``delta > 0``.
+* Contact point: at ``l_i = R_i - delta / 2`` from the centre of i along ``+n`` and ``l_j = R_j - delta/2``
+  from the centre of j along ``-n`` (the middle of the overlap lens). The arms add up to ``dist``, which
+  makes the tangential slip zero for every rigid motion of the pair and conserves angular momentum
+  exactly; ``l_k`` is the ``R_k`` of PHYSICS.md's torque ``R n x ft`` (they differ by ``delta / 2``).
+* Relative velocity of the contact point of i with respect to that of j::
+
+      u = v_i - v_j + (l_i w_i + l_j w_j) x n
+
+  ``u . n = d(delta)/dt`` is the approach rate (positive while the spheres close in) and
+  ``u_t = u - (u . n) n`` the sliding velocity; the tangential displacement over a step is
+  ``ds = u_t dt`` (translation and rotation of both spheres; with velocity Verlet the kernels see the
+  half-step velocities, so for translation ``ds`` is exactly the step's displacement).
+* The history ``h`` [N], one row ``[3]`` per pair, is the elastic tangential force acting on **i**
+  (j feels ``-h``). Per step: ``h`` is carried into the current contact plane (its normal component
+  removed, then turned about ``n`` by the mean spin ``(w_i + w_j) . n dt / 2`` of the pair, then
+  rescaled to its former magnitude), incremented by ``-kt ds`` and capped at ``mu fn``.
+* Output of one pair, ``out[9]`` (same layout as the beam bond): force on i ``F_i = -fn n + ft``
+  (j gets ``-F_i``), torque on i ``T_i = l_i n x ft`` and on j ``T_j = l_j n x ft``. Both torques carry
+  the same sign because both the arm and the force flip between i and j. Then
+  ``T_i + T_j + x_i x F_i + (x_j + s) x F_j = 0`` exactly (the pair conserves angular momentum).
+"""
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def relative_motion(i, j, v, w, n0, n1, n2, li, lj):
+    """Approach rate ``u . n`` [m/s], sliding velocity ``u_t`` [m/s] and mean spin about ``n`` [rad/s].
+
+    Returns ``(un, ut0, ut1, ut2, spin)``, see the module conventions for ``u``.
+    """
+    a0 = li * w[i, 0] + lj * w[j, 0]
+    a1 = li * w[i, 1] + lj * w[j, 1]
+    a2 = li * w[i, 2] + lj * w[j, 2]
+    u0 = v[i, 0] - v[j, 0] + a1 * n2 - a2 * n1
+    u1 = v[i, 1] - v[j, 1] + a2 * n0 - a0 * n2
+    u2 = v[i, 2] - v[j, 2] + a0 * n1 - a1 * n0
+    un = u0 * n0 + u1 * n1 + u2 * n2
+    spin = 0.5 * ((w[i, 0] + w[j, 0]) * n0 + (w[i, 1] + w[j, 1]) * n1 + (w[i, 2] + w[j, 2]) * n2)
+    return un, u0 - un * n0, u1 - un * n1, u2 - un * n2, spin
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def carry_history(hist, p, n0, n1, n2, spin_angle):
+    """Carry the stored tangential force ``hist[p]`` into the plane normal to unit ``n``, in place.
+
+    The normal component is removed, the remainder turned by ``spin_angle`` [rad] about ``n``
+    (first order, the rescaling makes it a pure rotation) and rescaled to the magnitude it had, so
+    a rigid rotation of the pair never changes the magnitude of the stored force. Returns the
+    carried force ``(h0, h1, h2)``.
+    """
+    h0 = hist[p, 0]
+    h1 = hist[p, 1]
+    h2 = hist[p, 2]
+    mag2 = h0 * h0 + h1 * h1 + h2 * h2
+    if mag2 == 0.0:
+        return 0.0, 0.0, 0.0
+    hn = h0 * n0 + h1 * n1 + h2 * n2
+    h0 -= hn * n0
+    h1 -= hn * n1
+    h2 -= hn * n2
+    # turn about n: h += angle n x h (h is now normal to n)
+    c0 = spin_angle * (n1 * h2 - n2 * h1)
+    c1 = spin_angle * (n2 * h0 - n0 * h2)
+    c2 = spin_angle * (n0 * h1 - n1 * h0)
+    h0 += c0
+    h1 += c1
+    h2 += c2
+    left2 = h0 * h0 + h1 * h1 + h2 * h2
+    if left2 == 0.0:   # the stored force was along the new normal: nothing is left in the plane
+        return 0.0, 0.0, 0.0
+    s = np.sqrt(mag2 / left2)
+    return h0 * s, h1 * s, h2 * s
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def coulomb_cap(f0, f1, f2, cap):
+    """``f`` scaled back to magnitude ``cap`` [N] when it exceeds it (``cap >= 0``)."""
+    mag2 = f0 * f0 + f1 * f1 + f2 * f2
+    if mag2 <= cap * cap:
+        return f0, f1, f2
+    s = cap / np.sqrt(mag2)
+    return f0 * s, f1 * s, f2 * s
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def update_history(hist, p, n0, n1, n2, ut0, ut1, ut2, spin, dt, kt, cap):
+    """Incremental elastic tangential force of pair ``p``: carry, add ``-kt u_t dt``, Coulomb cap.
+
+    ``hist[p]`` is overwritten with the new value, which is also returned ``(h0, h1, h2)`` [N].
+    """
+    h0, h1, h2 = carry_history(hist, p, n0, n1, n2, spin * dt)
+    k = kt * dt
+    h0, h1, h2 = coulomb_cap(h0 - k * ut0, h1 - k * ut1, h2 - k * ut2, cap)
+    hist[p, 0] = h0
+    hist[p, 1] = h1
+    hist[p, 2] = h2
+    return h0, h1, h2
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def clear_history(hist, p):
+    hist[p, 0] = 0.0
+    hist[p, 1] = 0.0
+    hist[p, 2] = 0.0
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def write_pair(out, n0, n1, n2, fn, ft0, ft1, ft2, li, lj):
+    """Fill ``out[9]`` = (F_i, T_i, T_j) from the normal force ``fn`` [N] (repulsive > 0) and the
+    tangential force ``ft`` on i [N]."""
+    out[0] = ft0 - fn * n0
+    out[1] = ft1 - fn * n1
+    out[2] = ft2 - fn * n2
+    c0 = n1 * ft2 - n2 * ft1
+    c1 = n2 * ft0 - n0 * ft2
+    c2 = n0 * ft1 - n1 * ft0
+    out[3] = li * c0
+    out[4] = li * c1
+    out[5] = li * c2
+    out[6] = lj * c0
+    out[7] = lj * c1
+    out[8] = lj * c2
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def scatter_pair(i, j, f, t, out):
+    """Add ``out`` = (F_i, T_i, T_j) to rows i and j (j gets ``-F_i``); rows may be ghosts."""
+    f[i, 0] += out[0]
+    f[i, 1] += out[1]
+    f[i, 2] += out[2]
+    f[j, 0] -= out[0]
+    f[j, 1] -= out[1]
+    f[j, 2] -= out[2]
+    t[i, 0] += out[3]
+    t[i, 1] += out[4]
+    t[i, 2] += out[5]
+    t[j, 0] += out[6]
+    t[j, 1] += out[7]
+    t[j, 2] += out[8]
+
+
+def check_pairs(i, j, history, shift):
+    """Check the shapes of a pair list for the Python dispatchers (O(1), no scan of the rows).
+
+    i, j : [n_pairs] integer rows; history : [n_pairs, 3] float64; shift : None or [n_pairs, 3].
+    """
+    n_pairs = len(i)
+    if len(j) != n_pairs:
+        raise ValueError(f"pair arrays differ in length: {len(i)} i, {len(j)} j")
+    if history.shape != (n_pairs, 3) or history.dtype != np.float64:
+        raise ValueError(f"history must be float64 [{n_pairs}, 3], got {history.dtype} {history.shape}")
+    if shift is not None and (shift.shape != (n_pairs, 3) or shift.dtype != np.float64):
+        raise ValueError(f"shift must be float64 [{n_pairs}, 3], got {shift.dtype} {shift.shape}")
+
+
+NO_SHIFT = np.zeros((0, 3))

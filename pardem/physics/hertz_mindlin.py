@@ -1,0 +1,365 @@
+"""Hertz-Mindlin contact with tangential history and Coulomb friction. PHYSICS.md section 8.
+
+Kinematics, sign conventions, the history carry and the output layout are those of
+``pardem.physics.contact_frame`` (normal ``n`` from i to j, history = elastic tangential force on i).
+
+Laws
+----
+Overlap ``delta`` [m], ``R* = R_i R_j / (R_i + R_j)``, contact radius ``a = sqrt(R* delta)``:
+
+* normal (Hertz): ``fn_el = 4/3 E* sqrt(R*) delta^(3/2) = 4/3 E* a delta``;
+* tangential (Mindlin, no-slip stiffness, incremental): ``dft = -kt ds``, ``kt = 8 G* a``;
+* Coulomb: ``|ft| <= mu fn`` (the stored force is scaled back when it exceeds the cap);
+* optional normal damping (chosen at setup): ``fn = fn_el + gamma sqrt(m* Sn) d(delta)/dt`` with the
+  tangent stiffness ``Sn = d fn_el / d delta = 2 E* a`` and ``m* = m_i m_j / (m_i + m_j)``; the total
+  ``fn`` is clipped at zero (no tension). No tangential damping (the tangential spring dissipates
+  by sliding only).
+
+Effective moduli (``effective_moduli``), Young's modulus ``E_k`` and Poisson ratio ``nu_k`` of the grains,
+``G_k = E_k / (2 (1 + nu_k))``::
+
+    1/E* = (1 - nu_1^2)/E_1 + (1 - nu_2^2)/E_2        (different materials)
+    1/G* = (2 - nu_1)/G_1  + (2 - nu_2)/G_2
+
+so for identical grains ``E* = E / (2 (1 - nu^2)) = G / (1 - nu)`` and ``G* = G / (2 (2 - nu))``, which
+gives ``kt = 8 G* a = 4 G / (2 - nu) sqrt(R* delta)``: PHYSICS.md's same-material Mindlin stiffness.
+(The source G writes the law with the half overlap and ``Rbar = 2 R*``; it is the same law.)
+
+Damping coefficient
+-------------------
+The damped Hertz contact is scale free: with ``delta = v T X``, ``t = T tau`` and
+``T = (m* / K)^(2/5) v^(-1/5)``, ``K = 4/3 E* sqrt(R*)``, it reads
+``X'' = -X^(3/2) - c X^(1/4) X'`` with ``c = gamma sqrt(3/2)``, ``X(0) = 0``, ``X'(0) = 1``, so the
+restitution coefficient depends on ``gamma`` only, not on the impact speed, sizes or moduli.
+``hertz_damping_coefficient(e)`` solves that equation (RK4, contact ending when the clipped force
+vanishes) and inverts it by bisection: the contact then has exactly the restitution ``e``.
+For weak damping ``1 - e^2 = 3.4414 gamma`` (dissipation along the elastic path,
+``4 sqrt(3/2) sqrt(5/4) (2/5) B(1/2, 3/2) = 3.4414``); the usual Tsuji / LIGGGHTS choice
+``gamma = 2 sqrt(5/6) (-ln e) / sqrt(pi^2 + ln^2 e)`` (``tsuji_damping_coefficient``) has the same
+weak-damping limit but, with the no-tension clip, rebounds at 0.902, 0.550, 0.253 for a target
+``e`` of 0.9, 0.5, 0.1.
+
+Energy
+------
+Returned per call: the elastic energy ``sum 2/5 fn_el delta + |h|^2 / (2 kt)`` [J]; the normal part
+``2/5 fn_el delta = 8/15 E* sqrt(R*) delta^(5/2)`` is the exact potential of the Hertz force
+(``= 2/5 kn delta^2`` with the secant stiffness ``kn = fn_el / delta``). The tangential part is the
+energy of the current tangential spring (the incremental Mindlin law is path dependent, so it is a
+state measure, not a potential).
+
+References
+----------
+Johnson K.L., Contact Mechanics, CUP 1985, sections 4.2 (Hertz) and 7.2 (Mindlin).
+Mindlin R.D., Deresiewicz H., J. Appl. Mech. 20 (1953) 327.
+Tsuji Y., Tanaka T., Ishida T., Powder Technol. 71 (1992) 239 (damping form ``sqrt(m* Sn)``).
+"""
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+from numba import njit
+
+from pardem.physics.contact_frame import (NO_SHIFT, check_pairs, clear_history, relative_motion,
+                                          scatter_pair, update_history, write_pair)
+
+
+def effective_moduli(young1, poisson1, young2=None, poisson2=None):
+    """``(E*, G*)`` [Pa] of a contact between grains of materials 1 and 2 (2 defaults to 1)."""
+    if young2 is None:
+        young2 = young1
+    if poisson2 is None:
+        poisson2 = poisson1
+    g1 = young1 / (2.0 * (1.0 + poisson1))
+    g2 = young2 / (2.0 * (1.0 + poisson2))
+    e_star = 1.0 / ((1.0 - poisson1**2) / young1 + (1.0 - poisson2**2) / young2)
+    g_star = 1.0 / ((2.0 - poisson1) / g1 + (2.0 - poisson2) / g2)
+    return float(e_star), float(g_star)
+
+
+# ---------------------------------------------------------------------------------------------
+# restitution of the damped Hertz contact (setup only)
+
+@njit(cache=True, error_model="numpy")
+def _hertz_restitution(c, steps_per_unit):
+    """Restitution of ``X'' = -X^1.5 - c X^0.25 X'``, ``X(0) = 0, X'(0) = 1``, force clipped at 0.
+
+    RK4 in ``tau``; the first step starts from the series ``X = tau - 16/45 c tau^(9/4)``,
+    ``X' = 1 - 4/5 c tau^(5/4)`` (the damping term is not smooth at ``X = 0``).
+    """
+    h = 1.0 / steps_per_unit
+    tau = h
+    x = tau - 16.0 / 45.0 * c * tau**2.25
+    u = 1.0 - 0.8 * c * tau**1.25
+
+    for _ in range(100 * steps_per_unit):   # the contact lasts less than 4 units
+        fo = max(x, 0.0) ** 1.5 + c * max(x, 0.0) ** 0.25 * u
+        xo = x
+        uo = u
+        x1 = max(x, 0.0)
+        k1x = u
+        k1u = -(x1**1.5 + c * x1**0.25 * u)
+        x2 = max(x + 0.5 * h * k1x, 0.0)
+        u2 = u + 0.5 * h * k1u
+        k2x = u2
+        k2u = -(x2**1.5 + c * x2**0.25 * u2)
+        x3 = max(x + 0.5 * h * k2x, 0.0)
+        u3 = u + 0.5 * h * k2u
+        k3x = u3
+        k3u = -(x3**1.5 + c * x3**0.25 * u3)
+        x4 = max(x + h * k3x, 0.0)
+        u4 = u + h * k3u
+        k4x = u4
+        k4u = -(x4**1.5 + c * x4**0.25 * u4)
+        x += h / 6.0 * (k1x + 2.0 * k2x + 2.0 * k3x + k4x)
+        u += h / 6.0 * (k1u + 2.0 * k2u + 2.0 * k3u + k4u)
+        tau += h
+        if u < 0.0:
+            if x <= 0.0:   # back at zero overlap with a positive force (no damping)
+                return -(uo + (u - uo) * xo / (xo - x))
+            fnew = x**1.5 + c * x**0.25 * u
+            if fnew <= 0.0:   # the clipped force vanishes: the spheres separate
+                return -(uo + (u - uo) * fo / (fo - fnew))
+    return np.nan
+
+
+@njit(cache=True, error_model="numpy")
+def _calibrate(e, steps_per_unit):
+    if e >= 1.0:
+        return 0.0
+    hi = 1.0
+    while _hertz_restitution(hi * np.sqrt(1.5), steps_per_unit) > e:
+        hi *= 2.0
+    lo = 0.0
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        if _hertz_restitution(mid * np.sqrt(1.5), steps_per_unit) > e:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo < 1e-12 * hi:
+            break
+    return 0.5 * (lo + hi)
+
+
+_STEPS_PER_UNIT = 5000   # RK4 steps per unit of tau: restitution converged to 1e-9
+
+
+@lru_cache(maxsize=64)
+def hertz_damping_coefficient(restitution):
+    """``gamma`` of the damping term ``gamma sqrt(m* Sn) d(delta)/dt`` giving restitution ``e``.
+
+    Exact for the no-tension damped Hertz contact (see the module docstring), to about 1e-9.
+    """
+    e = float(restitution)
+    if not 0.0 < e <= 1.0:
+        raise ValueError(f"restitution must be in (0, 1], got {e}")
+    return float(_calibrate(e, _STEPS_PER_UNIT))
+
+
+def hertz_restitution(gamma):
+    """Restitution coefficient of the no-tension damped Hertz contact with coefficient ``gamma``."""
+    return float(_hertz_restitution(float(gamma) * np.sqrt(1.5), _STEPS_PER_UNIT))
+
+
+def tsuji_damping_coefficient(restitution):
+    """The usual closed form ``gamma = 2 sqrt(5/6) (-ln e) / sqrt(pi^2 + ln^2 e)`` (approximate)."""
+    le = np.log(restitution)
+    return float(2.0 * np.sqrt(5.0 / 6.0) * (-le) / np.sqrt(np.pi**2 + le * le))
+
+
+# ---------------------------------------------------------------------------------------------
+# parameters and the per-pair law
+
+@dataclass(frozen=True)
+class Params:
+    """Hertz-Mindlin contact parameters.
+
+    young [Pa], poisson : the grains' material; young2, poisson2 : the partner's material when the
+        contacts join two different materials (default: the same).
+    friction : Coulomb coefficient ``mu >= 0`` (0: frictionless).
+    restitution : normal restitution coefficient in (0, 1]; 1 compiles the undamped kernel.
+    Derived (read only): e_star, g_star [Pa], gamma (damping coefficient), damped.
+    """
+    young: float
+    poisson: float
+    friction: float = 0.5
+    restitution: float = 1.0
+    young2: float = None
+    poisson2: float = None
+    e_star: float = field(init=False)
+    g_star: float = field(init=False)
+    gamma: float = field(init=False)
+    damped: bool = field(init=False)
+
+    def __post_init__(self):
+        for name in ("young", "young2"):
+            val = getattr(self, name)
+            if val is not None and not (np.isfinite(val) and val > 0.0):
+                raise ValueError(f"hertz_mindlin.{name} must be a positive number [Pa], got {val}")
+        for name in ("poisson", "poisson2"):
+            val = getattr(self, name)
+            if val is not None and not (-1.0 < val < 0.5):
+                raise ValueError(f"hertz_mindlin.{name} must be in (-1, 0.5), got {val}")
+        if not (np.isfinite(self.friction) and self.friction >= 0.0):
+            raise ValueError(f"hertz_mindlin.friction must be >= 0, got {self.friction}")
+        if not (0.0 < self.restitution <= 1.0):
+            raise ValueError(f"hertz_mindlin.restitution must be in (0, 1], got {self.restitution}")
+        e_star, g_star = effective_moduli(self.young, self.poisson, self.young2, self.poisson2)
+        object.__setattr__(self, "e_star", e_star)
+        object.__setattr__(self, "g_star", g_star)
+        object.__setattr__(self, "gamma", hertz_damping_coefficient(self.restitution))
+        object.__setattr__(self, "damped", self.restitution < 1.0)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def hertz_mindlin_pair(p, i, j, s0, s1, s2, x, v, w, radius, mass, hist, dt, e_star, g_star, mu,
+                       gamma, out, damped):
+    """Contact of rows i and j (image shift ``s`` [m] added to ``x_j``), history row ``hist[p]``.
+
+    Writes ``out[9]`` = (F_i, T_i, T_j) and updates ``hist[p]`` when the spheres touch; clears
+    ``hist[p]`` otherwise. ``damped`` must be a compile-time constant. Returns
+    ``(touching, elastic energy [J])``.
+    """
+    d0 = (x[j, 0] - x[i, 0]) + s0
+    d1 = (x[j, 1] - x[i, 1]) + s1
+    d2 = (x[j, 2] - x[i, 2]) + s2
+    dist2 = d0 * d0 + d1 * d1 + d2 * d2
+    ri = radius[i]
+    rj = radius[j]
+    rsum = ri + rj
+    if dist2 >= rsum * rsum:
+        clear_history(hist, p)
+        return False, 0.0
+    dist = np.sqrt(dist2)
+    inv = 1.0 / dist
+    n0 = d0 * inv
+    n1 = d1 * inv
+    n2 = d2 * inv
+    delta = rsum - dist
+    li = ri - 0.5 * delta
+    lj = rj - 0.5 * delta
+    a = np.sqrt(ri * rj / rsum * delta)          # contact radius sqrt(R* delta)
+    fn_el = 4.0 / 3.0 * e_star * a * delta       # Hertz
+    un, ut0, ut1, ut2, spin = relative_motion(i, j, v, w, n0, n1, n2, li, lj)
+    fn = fn_el
+    if damped:
+        m_star = mass[i] * mass[j] / (mass[i] + mass[j])
+        fn += gamma * np.sqrt(m_star * 2.0 * e_star * a) * un
+        if fn < 0.0:
+            fn = 0.0
+    kt = 8.0 * g_star * a                        # Mindlin
+    h0, h1, h2 = update_history(hist, p, n0, n1, n2, ut0, ut1, ut2, spin, dt, kt, mu * fn)
+    write_pair(out, n0, n1, n2, fn, h0, h1, h2, li, lj)
+    return True, 0.4 * fn_el * delta + 0.5 * (h0 * h0 + h1 * h1 + h2 * h2) / kt
+
+
+def _pair_loop(damped, shifted):
+    """Loop over a pair list; ``damped`` and ``shifted`` are frozen as compile-time constants."""
+    @njit(cache=True, error_model="numpy")
+    def loop(pi, pj, shift, x, v, w, radius, mass, f, t, hist, dt, e_star, g_star, mu, gamma):
+        out = np.empty(9)
+        energy = 0.0
+        s0 = s1 = s2 = 0.0
+        for p in range(pi.shape[0]):
+            i = pi[p]
+            j = pj[p]
+            if shifted:
+                s0 = shift[p, 0]
+                s1 = shift[p, 1]
+                s2 = shift[p, 2]
+            touching, e = hertz_mindlin_pair(p, i, j, s0, s1, s2, x, v, w, radius, mass, hist, dt,
+                                             e_star, g_star, mu, gamma, out, damped)
+            if touching:
+                scatter_pair(i, j, f, t, out)
+                energy += e
+        return energy
+    return loop
+
+
+def _all_pairs_loop(damped):
+    """Brute-force O(n^2) loop over every pair ``i < j`` of all rows (test oracle)."""
+    @njit(cache=True, error_model="numpy")
+    def loop(x, v, w, radius, mass, f, t, hist_full, dt, e_star, g_star, mu, gamma):
+        out = np.empty(9)
+        energy = 0.0
+        n = x.shape[0]
+        for i in range(n):
+            hist_i = hist_full[i]
+            for j in range(i + 1, n):
+                touching, e = hertz_mindlin_pair(j, i, j, 0.0, 0.0, 0.0, x, v, w, radius, mass,
+                                                 hist_i, dt, e_star, g_star, mu, gamma, out, damped)
+                if touching:
+                    scatter_pair(i, j, f, t, out)
+                    energy += e
+        return energy
+    return loop
+
+
+@lru_cache(maxsize=None)
+def pair_loop(damped, shifted):
+    """The compiled pair-list kernel for one sub-model choice (built once per choice).
+
+    ``loop(i, j, shift, x, v, w, radius, mass, f, t, history, dt, e_star, g_star, mu, gamma)``
+    adds the pair forces and torques to ``f``, ``t`` (owned and ghost rows alike), updates
+    ``history`` [n_pairs, 3] and returns the elastic energy [J]. ``shift`` [n_pairs, 3] is read only
+    when ``shifted``.
+    """
+    return _pair_loop(bool(damped), bool(shifted))
+
+
+@lru_cache(maxsize=None)
+def all_pairs_loop(damped):
+    """``loop(x, v, w, radius, mass, f, t, history_full, dt, e_star, g_star, mu, gamma)`` over all
+    row pairs, history ``[n, n, 3]`` indexed ``[i, j]`` with ``i < j`` (test oracle)."""
+    return _all_pairs_loop(bool(damped))
+
+
+# ---------------------------------------------------------------------------------------------
+# model interface (STYLE pattern 3)
+
+def cutoff(params, rmax):
+    """Largest centre distance at which two spheres of radius <= ``rmax`` [m] interact [m]."""
+    return 2.0 * float(rmax)
+
+
+def compute(params, elements, i, j, history, dt, shift=None):
+    """Add the contact forces of the pairs ``(i[p], j[p])`` to ``elements.f``/``elements.t``.
+
+    i, j : [n_pairs] rows (ordered by gid within each pair); history : [n_pairs, 3] tangential force
+    on i [N], updated in place (zeroed for pairs not in contact); dt [s] : step; shift : optional
+    [n_pairs, 3] periodic image shift added to ``x_j`` [m]. Returns the elastic energy [J].
+    """
+    check_pairs(i, j, history, shift)
+    e, p = elements, params
+    loop = pair_loop(p.damped, shift is not None)
+    return loop(i, j, NO_SHIFT if shift is None else shift, e.x, e.v, e.w, e.radius, e.mass, e.f,
+                e.t, history, float(dt), p.e_star, p.g_star, p.friction, p.gamma)
+
+
+def compute_all_pairs(params, elements, history_full, dt):
+    """Brute-force version of ``compute`` over all row pairs, history ``[n, n, 3]`` (tests)."""
+    e, p = elements, params
+    return all_pairs_loop(p.damped)(e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history_full,
+                                    float(dt), p.e_star, p.g_star, p.friction, p.gamma)
+
+
+def single(params, elements, i, j, history_row, dt, shift=(0.0, 0.0, 0.0)):
+    """Diagnostics of one pair, nothing modified: dict with ``force_i``, ``torque_i``, ``torque_j``,
+    ``history`` (the value the step would store), ``energy`` and ``touching``."""
+    e, p = elements, params
+    hist = np.array(history_row, dtype=np.float64).reshape(1, 3)
+    out = np.zeros(9)
+    s = np.asarray(shift, dtype=np.float64)
+    touching, energy = _single_kernel(i, j, s, e.x, e.v, e.w, e.radius, e.mass, hist, float(dt),
+                                      p.e_star, p.g_star, p.friction, p.gamma, out, p.damped)
+    return {"touching": bool(touching), "force_i": out[0:3].copy(), "torque_i": out[3:6].copy(),
+            "torque_j": out[6:9].copy(), "history": hist[0].copy(), "energy": float(energy)}
+
+
+@njit(cache=True, error_model="numpy")
+def _single_kernel(i, j, s, x, v, w, radius, mass, hist, dt, e_star, g_star, mu, gamma, out, damped):
+    if damped:
+        return hertz_mindlin_pair(0, i, j, s[0], s[1], s[2], x, v, w, radius, mass, hist, dt,
+                                  e_star, g_star, mu, gamma, out, True)
+    return hertz_mindlin_pair(0, i, j, s[0], s[1], s[2], x, v, w, radius, mass, hist, dt,
+                              e_star, g_star, mu, gamma, out, False)
