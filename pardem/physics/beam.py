@@ -27,6 +27,8 @@ per mode. The damping forces therefore balance like the elastic ones and vanish 
 import numpy as np
 from numba import njit
 
+from pardem.physics.pair_loads import scatter_pair
+
 
 @njit(cache=True, inline="always", error_model="numpy")
 def _angle_over_sine(s2, c):
@@ -171,7 +173,7 @@ def _bond_loop(damped):
             j = bj[b]
             energy += beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t,
                                 u1, p1, u2, p2, out, damped)
-            _scatter(i, j, f, t, out)
+            scatter_pair(i, j, f, t, out)
         return energy
     return loop
 
@@ -180,22 +182,6 @@ def _bond_loop(damped):
 # elastic energy of the bonds [J]. The elastic loop is for bonds whose tau are all zero.
 beam_forces = _bond_loop(True)
 beam_forces_elastic = _bond_loop(False)
-
-
-@njit(cache=True, inline="always")
-def _scatter(i, j, f, t, out):
-    f[i, 0] += out[0]
-    f[i, 1] += out[1]
-    f[i, 2] += out[2]
-    f[j, 0] -= out[0]
-    f[j, 1] -= out[1]
-    f[j, 2] -= out[2]
-    t[i, 0] += out[3]
-    t[i, 1] += out[4]
-    t[i, 2] += out[5]
-    t[j, 0] += out[6]
-    t[j, 1] += out[7]
-    t[j, 2] += out[8]
 
 
 def compute_bonds(bonds, elements):

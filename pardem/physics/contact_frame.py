@@ -36,6 +36,8 @@ Conventions (the same in every contact law of pardem)
 import numpy as np
 from numba import njit
 
+from pardem.physics.pair_loads import scatter_pair  # noqa: F401  (re-exported for the laws)
+
 
 @njit(cache=True, inline="always", error_model="numpy")
 def relative_motion(i, j, v, w, n0, n1, n2, li, lj):
@@ -135,23 +137,6 @@ def write_pair(out, n0, n1, n2, fn, ft0, ft1, ft2, li, lj):
     out[6] = lj * c0
     out[7] = lj * c1
     out[8] = lj * c2
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def scatter_pair(i, j, f, t, out):
-    """Add ``out`` = (F_i, T_i, T_j) to rows i and j (j gets ``-F_i``); rows may be ghosts."""
-    f[i, 0] += out[0]
-    f[i, 1] += out[1]
-    f[i, 2] += out[2]
-    f[j, 0] -= out[0]
-    f[j, 1] -= out[1]
-    f[j, 2] -= out[2]
-    t[i, 0] += out[3]
-    t[i, 1] += out[4]
-    t[i, 2] += out[5]
-    t[j, 0] += out[6]
-    t[j, 1] += out[7]
-    t[j, 2] += out[8]
 
 
 def check_pairs(i, j, history, shift):

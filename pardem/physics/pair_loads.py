@@ -1,0 +1,20 @@
+"""Adding the loads of one interacting pair (bond or contact) to the element rows."""
+from numba import njit
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def scatter_pair(i, j, f, t, out):
+    """Add ``out`` = (F_i, T_i, T_j) [N, N m, N m] to rows i and j (j gets ``-F_i``); rows may be
+    ghosts (the parallel layer ignores their loads)."""
+    f[i, 0] += out[0]
+    f[i, 1] += out[1]
+    f[i, 2] += out[2]
+    f[j, 0] -= out[0]
+    f[j, 1] -= out[1]
+    f[j, 2] -= out[2]
+    t[i, 0] += out[3]
+    t[i, 1] += out[4]
+    t[i, 2] += out[5]
+    t[j, 0] += out[6]
+    t[j, 1] += out[7]
+    t[j, 2] += out[8]
