@@ -81,7 +81,10 @@ def test_default_deck_file_matches_builtin_defaults():
     import tomllib
     path = pathlib.Path(__file__).parents[1] / "drivers" / "compress_default.toml"
     from pardem.config import check_deck
-    from_file = check_deck(COMPRESS_SCHEMA, tomllib.loads(path.read_text()))
+    raw = tomllib.loads(path.read_text())
+    missing = [f"{s}.{k}" for s, fields in COMPRESS_SCHEMA.items() for k in fields if k not in raw.get(s, {})]
+    assert not missing, f"drivers/compress_default.toml should document every key: {missing}"
+    from_file = check_deck(COMPRESS_SCHEMA, raw)
     assert from_file == check_deck(COMPRESS_SCHEMA, {})
     assert set(defaults(COMPRESS_SCHEMA)) == set(from_file)
 
