@@ -383,12 +383,12 @@ class Progress:
         self.last = now
         done = s["step"] - self.start
         rate = done * self.n_elements / max(now - self.t0, 1e-9)
-        eta = (self.end - s["step"]) * self.n_elements / rate if rate > 0 else float("nan")
+        eta = f"{(self.end - s['step']) * self.n_elements / rate:6.1f} s" if rate > 0 else "    -- "
         eps = s["eps"][self.case.axis, self.case.axis]
         self.stream.write(
             f"step {s['step']:>8d}/{self.end} ({100.0 * done / max(self.end - self.start, 1):5.1f} %)  "
             f"t = {s['time']:.4e} s  eps = {eps:+.4e}  F = {s['force_fixed']:.4e} N  "
-            f"{rate:.3e} element-steps/s  ETA {eta:6.1f} s\n")
+            f"{rate:.3e} element-steps/s  ETA {eta}\n")
         self.stream.flush()
 
 
