@@ -65,7 +65,10 @@ def build_case(comm, deck, steps=None):
     """
     dom, bd, ld, run, par = deck["domain"], deck["bonds"], deck["loading"], deck["run"], deck["parallel"]
     R = dom["radius"]
-    pos, pairs, frame = ordered_lattice(dom["box"], R, dom["tilt_deg"])
+    try:
+        pos, pairs, frame = ordered_lattice(dom["box"], R, dom["tilt_deg"])
+    except ValueError as err:
+        raise DeckError(f"domain.box = {list(dom['box'])} with domain.radius = {R}: {err}") from None
     if len(pos) < 8:
         raise DeckError(f"domain.box = {list(dom['box'])} holds only {len(pos)} elements of radius "
                         f"{R}: expected a box at least 2 diameters wide along each axis")
@@ -79,6 +82,11 @@ def build_case(comm, deck, steps=None):
     high = float(np.max(pos[:, axis]) + R)
     extent = np.ptp(pos, axis=0) + 2 * R
     near_plate = np.minimum(pos[:, axis] - R - low, high - pos[:, axis] - R) < NEAR_PLATE_GAP * R
+    fit = pos[~near_plate]
+    if len(fit) < 4 or np.linalg.matrix_rank(np.cov(fit.T) if len(fit) > 1 else np.zeros((3, 3))) < 3:
+        raise DeckError(f"domain.box = {list(dom['box'])}: the elements away from the plates do not fill "
+                        f"3 dimensions, so the strain cannot be fitted: expected at least 2 element layers "
+                        f"across every axis and 3 along the loading axis {ld['axis']}")
 
     # slabs: cuts from a distributed bisection over a stripe of the elements per rank
     slab_axis = choose_axis(extent, avoid=axis) if par["slab_axis"] == "auto" else "xyz".index(par["slab_axis"])
@@ -210,6 +218,9 @@ def restore_case(comm, deck, path, steps=None):
     deck would change the physics.
     """
     meta = checkpoint.inspect(path)
+    if steps is not None and steps < int(meta["step"]):
+        raise DeckError(f"--steps {steps} is before the checkpoint's step {int(meta['step'])}: --steps "
+                        f"counts the run's total steps from its start")
     diffs = physics_differences(meta["deck"], deck)
     if diffs:
         name, old, new = diffs[0]
@@ -332,6 +343,7 @@ class CheckpointWriter:
         """Write a checkpoint of the current step now (collective), unless one exists already."""
         if self.written and self.last_step == sim.step_count:
             return
+        sim.check_stability()     # never write (and keep) the state of a run that blew up
         comm = sim.comm
         if comm.is_root:
             os.makedirs(self.directory, exist_ok=True)
@@ -339,11 +351,12 @@ class CheckpointWriter:
         path = os.path.join(self.directory, checkpoint.checkpoint_name(sim.step_count))
         groups, series, attrs = checkpoint_payload(self.case)
         checkpoint.write_checkpoint(path, comm, groups, series, attrs, self.mode)
+        self.written = [p for p in self.written if p != path] + [path]
         if comm.is_root:
-            checkpoint.prune(self.directory, self.keep)
+            checkpoint.prune(self.written, self.keep)
+        self.written = self.written[-self.keep:]
         self.last_time = time.monotonic()
         self.last_step = sim.step_count
-        self.written.append(path)
 
 
 class SeriesSampler:

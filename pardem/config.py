@@ -236,6 +236,8 @@ def load_deck(schema, path=None, overrides=(), base=None):
                 raw = tomllib.load(fh)
         except FileNotFoundError:
             raise DeckError(f"--config {path}: no such file") from None
+        except (OSError, UnicodeDecodeError) as err:
+            raise DeckError(f"--config {path}: cannot be read ({err})") from None
         except tomllib.TOMLDecodeError as err:
             raise DeckError(f"--config {path}: not valid TOML ({err})") from None
     for text in overrides:

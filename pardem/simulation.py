@@ -40,7 +40,7 @@ class FaultInjection:
 
 
 class InstabilityError(RuntimeError):
-    """The motion blew up (NaN or runaway speed): the run must stop."""
+    """The motion blew up (NaN, runaway speed, overstretched bond): the run must stop."""
 
 
 class Simulation:
@@ -91,12 +91,20 @@ class Simulation:
         self.step_count += 1
         self.time = self.step_count * self.dt   # not a running sum: no drift, exact on restart
 
-    def check_stability(self):
-        """Collective: raise ``InstabilityError`` on every rank if any rank blew up."""
-        if self.comm.any(self._unstable):
+    @property
+    def unstable(self):
+        """This rank saw a NaN or a runaway speed (not yet reduced over ranks)."""
+        return self._unstable
+
+    def check_stability(self, force=False):
+        """Collective: raise ``InstabilityError`` on every rank if any rank blew up.
+
+        ``force``: the caller already knows from a collective that some rank did.
+        """
+        if force or self.comm.any(self._unstable):
             raise InstabilityError(
-                f"the motion became unstable at step {self.step_count} (t = {self.time:.6g} s): "
-                "NaN or speed above the limit; reduce run.dt or check the stiffness and damping")
+                f"at step {self.step_count} (t = {self.time:.6g} s): "
+                "NaN or speed above the limit")
 
     def kinetic_energy(self):
         e = self.elements

@@ -188,3 +188,37 @@ def test_periodic_in_seconds_and_at_end(tmp_path):
     assert compress.main(args) == 0
     names = sorted(os.listdir(tmp_path / "t" / "checkpoints"))
     assert names[-1] == "checkpoint-0000002090.h5" and len(names) >= 2
+
+
+@pytest.mark.mpi
+def test_a_rank_with_nothing_to_write_does_not_hang(tmp_path):
+    """Rank 0 owns no element (and no bond): the collective MPI-IO write must still complete."""
+    out = tmp_path / "z"
+    p = driver(2, ["--out", str(out), "--set", "domain.box=[0.004,0.004,0.004]",
+                   "--set", "parallel.initial_split=[1e-5]", "--set", "parallel.balance_every=0",
+                   "--set", "checkpoint.driver=mpio", "--steps", "20"], timeout=120)
+    assert p.returncode == 0, p.stderr
+    meta = inspect(str(out / "checkpoints" / "checkpoint-0000000020.h5"))
+    assert list(meta["owned_counts"]) == [0, 512] and meta["n_bonds"] == 1344
+    p = driver(2, ["--restart", str(out / "checkpoints" / "checkpoint-0000000020.h5"), "--steps", "30",
+                   "--out", str(tmp_path / "r")], timeout=120)
+    assert p.returncode == 0, p.stderr
+
+
+def test_restart_refuses_steps_before_the_checkpoint(reference, tmp_path):
+    p = driver(1, ["--restart", str(reference[1] / MID), "--out", str(tmp_path / "x"), "--steps", "1000"])
+    _one_line_exit_2(p, "--steps 1000", "before the checkpoint's step 1500")
+
+
+def test_prune_keeps_other_runs_checkpoints(reference, tmp_path):
+    run = tmp_path / "copy"
+    shutil.copytree(reference[1], run)
+    p = driver(1, ["--restart", str(run / MID), "--set", "checkpoint.every_steps=100",
+                   "--set", "checkpoint.keep=2"])
+    assert p.returncode == 0, p.stderr
+    s = json.loads((run / "summary.json").read_text())
+    assert [os.path.basename(x) for x in s["checkpoints"]] == ["checkpoint-0000002000.h5",
+                                                               "checkpoint-0000002090.h5"]
+    names = sorted(os.listdir(run / "checkpoints"))
+    assert "checkpoint-0000001500.h5" in names          # written by the first run: not ours to prune
+    assert "checkpoint-0000001900.h5" not in names and "checkpoint-0000001600.h5" not in names

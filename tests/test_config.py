@@ -32,6 +32,10 @@ BAD = [
     (["--set", "output.series_every=1.5"], "output.series_every", "an integer"),
     (["--set", "noequals"], "noequals", "section.key=value"),
     (["--steps", "0"], "--steps", ">= 1"),
+    (["--set", "domain.box=[0.01, 0.01, 0.0003]"], "domain.box", "smaller than one element diameter"),
+    (["--set", "domain.box=[0.01, 0.01, 0.0015]", "--set", "loading.axis=z"], "domain.box",
+     "at least 2 element layers"),
+    (["--config", "/"], "--config /", "cannot be read"),
 ]
 
 

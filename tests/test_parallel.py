@@ -120,3 +120,31 @@ def test_failure_on_one_rank_ends_all(tmp_path, n, rank):
     assert p.returncode != 0
     assert p.stderr.count(f"fault injected on rank {rank} at step 60") == 1
     assert elapsed < 10 + 5, elapsed      # start-up (imports) plus the 10 s allowed
+
+
+def test_too_many_ranks_for_the_domain_is_bad_input(tmp_path):
+    """Slabs thinner than the ghost range: one line and exit 2 on every rank, nothing run."""
+    p = mpirun(3, ["-m", "pardem.drivers.compress", "--quiet", "--out", str(tmp_path / "o"),
+                   "--set", "domain.box=[0.002,0.002,0.002]"], timeout=120)
+    assert p.returncode == 2, p.stderr
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and "use fewer ranks" in lines[0] and "Traceback" not in p.stderr
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("n", [1, 2])
+def test_unstable_run_stops_every_rank_with_exit_3(tmp_path, n):
+    """A blow-up (time step 20x the true bound) ends all ranks with exit 3 and one message, and
+    no checkpoint of the blown-up state is kept (checkpoints were due every 10 steps)."""
+    out = tmp_path / "u"
+    p = mpirun(n, [os.path.join(HERE, "mpi", "unstable.py"), "20", "--quiet", "--out", str(out),
+                   "--set", "domain.box=[0.006,0.004,0.004]", "--steps", "400",
+                   "--set", "checkpoint.every_steps=10"], timeout=120)
+    assert p.returncode == 3, p.stderr
+    assert p.stderr.count("became unstable") == 1 and "Traceback" not in p.stderr
+    import h5py
+    names = os.listdir(out / "checkpoints")
+    assert names                      # some were written before the blow-up
+    for name in names:
+        with h5py.File(out / "checkpoints" / name) as f:
+            assert np.all(np.isfinite(f["elements/v"][...])), name

@@ -25,6 +25,7 @@ from pardem.io.series import SeriesCSV
 from pardem.io.series_h5 import SeriesH5
 from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator, report_and_abort
+from pardem.parallel.slab_comm import DecompositionError
 from pardem.simulation import FaultInjection, InstabilityError
 
 
@@ -65,7 +66,8 @@ def _run(comm, args, files):
         else:
             deck = read_deck(comm, COMPRESS_SCHEMA, args)
             case = build_case(comm, deck, steps=args.steps)
-    except (DeckError, checkpoint.CheckpointError) as err:
+        checkpoint.parallel_hdf5(deck["checkpoint"]["driver"])   # refuse "mpio" without MPI h5py now
+    except (DeckError, checkpoint.CheckpointError, DecompositionError) as err:
         fail_usage(comm, str(err))
     out = args.out or _default_out(comm, args.restart)
     sim = case.sim
@@ -114,7 +116,8 @@ def _run(comm, args, files):
         sim.run(steps_run, operations=operations)
     except InstabilityError as err:
         if comm.is_root:
-            sys.stderr.write(f"pardem: error: {err}; the last checkpoint (if any) is intact\n")
+            sys.stderr.write(f"pardem: error: the motion became unstable {err}; reduce run.dt or check "
+                             f"the stiffness and damping; the last checkpoint (if any) is intact\n")
         raise SystemExit(EXIT_UNSTABLE)
     files.close()
     if ck["at_end"]:

@@ -95,7 +95,10 @@ def write_checkpoint(path, comm, groups, series, attrs, mode="auto"):
                 ds = f[gname][name]
                 if collective:
                     with ds.collective:
-                        ds[off:off + n] = a
+                        if n:
+                            ds[off:off + n] = a
+                        else:
+                            _write_nothing(ds, a)
                 elif n:
                     ds[off:off + n] = a
 
@@ -139,6 +142,20 @@ def write_checkpoint(path, comm, groups, series, attrs, mode="auto"):
         finally:
             os.close(dfd)
     comm.barrier()
+
+
+def _write_nothing(ds, a):
+    """Take part in a collective write with an empty selection (inside ``ds.collective``).
+
+    h5py skips the HDF5 call for an empty slice, which would leave the other ranks waiting in the
+    collective write forever: a rank with no rows must still make the call.
+    """
+    shape = (1,) + tuple(a.shape[1:])
+    file_space = ds.id.get_space()
+    file_space.select_none()
+    mem_space = h5py.h5s.create_simple(shape)
+    mem_space.select_none()
+    ds.id.write(mem_space, file_space, np.zeros(shape, dtype=ds.dtype), dxpl=ds._dxpl)
 
 
 def inspect(path):
@@ -208,8 +225,10 @@ def checkpoint_name(step):
     return f"checkpoint-{step:010d}.h5"
 
 
-def prune(directory, keep):
-    """Delete all but the newest ``keep`` complete checkpoints in ``directory`` (rank 0 only)."""
-    names = sorted(n for n in os.listdir(directory) if n.startswith("checkpoint-") and n.endswith(".h5"))
-    for n in names[:-keep] if keep > 0 else []:
-        os.remove(os.path.join(directory, n))
+def prune(paths, keep):
+    """Delete all but the last ``keep`` of ``paths`` (this run's checkpoints, oldest first; rank 0
+    only); returns the kept paths. Files of other runs in the same directory are left alone."""
+    for path in paths[:-keep] if keep > 0 else []:
+        if os.path.exists(path):
+            os.remove(path)
+    return list(paths[-keep:]) if keep > 0 else list(paths)

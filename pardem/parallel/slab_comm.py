@@ -28,6 +28,7 @@ from numba import njit
 
 from pardem.parallel.slabs import Slabs, imbalance
 from pardem.physics.neighbours import max_displacement2
+from pardem.simulation import InstabilityError
 from pardem.state import Bonds, Elements
 
 _TAG_FORWARD, _TAG_EXCHANGE, _TAG_BORDERS = 71, 72, 73
@@ -68,6 +69,10 @@ def _concat(parts):
 
 class DecompositionError(RuntimeError):
     """The decomposition cannot hold this domain (e.g. slabs thinner than the ghost range)."""
+
+
+class BondOutOfReach(DecompositionError):
+    """A bond's ends are farther apart than the ghost range (raised on every rank together)."""
 
 
 class SlabComm:
@@ -182,9 +187,12 @@ class SlabComm:
         new = Elements.unpack(parts, n)
         try:
             bonds.relink(new.gid)
+            missing = None
         except KeyError as err:
-            raise DecompositionError(f"{err.args[0]}: a bond is longer than the ghost range "
-                                     f"{self.ghost_range:.4g} m") from None
+            missing = err.args[0]
+        if self.comm.any(missing is not None):     # every rank raises together
+            raise BondOutOfReach(f"{missing or 'a bond end is missing on another rank'}: a bond is "
+                                 f"longer than the ghost range {self.ghost_range:.4g} m")
         self._send_buf = {nb: np.empty((len(self.send_rows[nb]), GHOST_WIDTH)) for nb in self.neighbours}
         self._recv_buf = {nb: np.empty((self.recv_count[nb], GHOST_WIDTH)) for nb in self.neighbours}
         self.x_build = new.x[:n].copy()
@@ -213,11 +221,20 @@ class SlabComm:
         t0 = time.perf_counter()
         e = sim.elements
         rebalance = self.balance_every > 0 and sim.step_count % self.balance_every == 0 and self._unbalanced(sim)
-        moved = max_displacement2(e.x, self.x_build, e.n_owned)
-        if rebalance or self.comm.max(moved) > (0.5 * self.skin) ** 2:
+        # a blown-up rank reports an infinite displacement: every rank then stops together here,
+        # instead of trying to rebuild ghost layers around NaN positions
+        moved = np.inf if sim.unstable else max_displacement2(e.x, self.x_build, e.n_owned)
+        moved = self.comm.max(moved)
+        if not np.isfinite(moved):
+            sim.check_stability(force=True)
+        if rebalance or moved > (0.5 * self.skin) ** 2:
             if rebalance:
                 self._recut(sim)
-            sim.elements, sim.bonds = self.setup(e, sim.bonds)
+            try:
+                sim.elements, sim.bonds = self.setup(e, sim.bonds)
+            except BondOutOfReach as err:
+                # during a run a bond stretched by a quarter of its length means the motion blew up
+                raise InstabilityError(f"at step {sim.step_count}: {err}") from None
             self.rebuilds += 1
         else:
             self.forward(e)
