@@ -39,11 +39,24 @@ class Slabs:
         return len(self.cut_s) + 1
 
     def owner(self, s, gid):
-        """Rank owning each key ``(s, gid)``."""
-        s = np.asarray(s, dtype=np.float64)[:, None]
-        g = np.asarray(gid, dtype=np.int64)[:, None]
-        above = (s > self.cut_s[None, :]) | ((s == self.cut_s[None, :]) & (g >= self.cut_g[None, :]))
-        return above.sum(axis=1)
+        """Rank owning each key ``(s, gid)``: the number of cuts at or below it (lexicographically).
+
+        O(N log P) time and O(N) memory: a binary search on the cut coordinates, then, for the keys
+        lying exactly on a cut coordinate (a lattice plane split between ranks), one on the cut
+        gids of that coordinate.
+        """
+        s = np.asarray(s, dtype=np.float64)
+        g = np.asarray(gid, dtype=np.int64)
+        lo = np.searchsorted(self.cut_s, s, side="left")
+        hi = np.searchsorted(self.cut_s, s, side="right")
+        owner = lo.astype(np.int64)
+        tied = np.nonzero(hi > lo)[0]
+        if len(tied):
+            for a in np.unique(lo[tied]):          # at most P - 1 distinct cut coordinates
+                rows = tied[lo[tied] == a]
+                b = hi[rows[0]]
+                owner[rows] += np.searchsorted(self.cut_g[a:b], g[rows], side="right")
+        return owner
 
     def bounds(self, rank):
         """Lower and upper slab coordinates of ``rank`` (infinite at the ends)."""
