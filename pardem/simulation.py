@@ -1,7 +1,9 @@
 """The time loop: a ``Simulation`` advances the state and runs operations (HOOMD style).
 
-``step()`` is the only place that sequences kernels: half kick and drift, plate motion, (the parallel
-layer's ghost exchange goes here), bond and plate forces, second half kick. Operations are callables
+``step()`` is the only place that sequences kernels: half kick and drift, the periodic cell's affine
+deformation, plate motion, the parallel layer's ghost exchange (or, on one process, the contact
+list's rebuild check), bond, plate and contact forces, global viscous damping, the cell's pressure
+servo, second half kick. Operations are callables
 with an ``every`` period in steps (writers, progress, checks); they run after the step whose count
 is a multiple of their period, and once more at the end of ``run``.
 """
@@ -12,6 +14,7 @@ import numpy as np
 
 from pardem.physics.beam import compute_bonds
 from pardem.physics.plates import plate_forces
+from pardem.physics.viscous_damping import damp_elements
 from pardem.physics.verlet import kick, kick_drift, kinetic_energy
 
 
@@ -44,13 +47,17 @@ class InstabilityError(RuntimeError):
 
 
 class Simulation:
-    """Bonded elements between plates on one rank of a communicator.
+    """Bonded and contacting elements (between plates, or in a periodic cell) on one rank.
 
     dt [s] must already be checked against the critical step. ``max_speed`` [m/s] is the speed
     above which the run is declared unstable (default: far above any physical DEM speed).
+    Optional parts: ``plates`` (``state.Plates``), ``contacts`` (``pardem.contacts.Contacts``),
+    ``cell`` (``pardem.periodic_cell.PeriodicCell``), ``viscous_damping`` rate C [1/s] (global
+    drag ``-C m v``, ``-C I w``, for sample preparation).
     """
 
-    def __init__(self, comm, elements, bonds, plates, dt, max_speed=1e4, check_every=50, domain=None):
+    def __init__(self, comm, elements, bonds, plates, dt, max_speed=1e4, check_every=50, domain=None,
+                 contacts=None, cell=None, viscous_damping=0.0):
         self.comm = comm
         self.elements = elements
         self.bonds = bonds
@@ -65,25 +72,55 @@ class Simulation:
         self._unstable = False
         self.seconds_computing = 0.0   # in the kernels (communication excluded)
         self.domain = domain           # the parallel layer (SlabComm) or None on a single process
+        self.contacts = contacts
+        self.cell = cell
+        self.viscous_damping = float(viscous_damping)
+        self.contact_energy = 0.0
+        self.stress = np.zeros((3, 3))  # Love-Weber stress of the contacts [Pa] (servo cells only)
 
     def compute_forces(self):
         """Forces and torques of the current configuration (after ``f``, ``t`` were zeroed)."""
         e, p = self.elements, self.plates
-        self.bond_energy = compute_bonds(self.bonds, e)
-        self.plate_energy = plate_forces(e.x, e.radius, e.f, e.n_owned, p.axis, p.positions,
-                                         p.sides, p.stiffness, p.force_local)
+        if self.bonds is not None and self.bonds.n:
+            self.bond_energy = compute_bonds(self.bonds, e)
+        if p is not None:
+            self.plate_energy = plate_forces(e.x, e.radius, e.f, e.n_owned, p.axis, p.positions,
+                                             p.sides, p.stiffness, p.force_local)
+        if self.contacts is not None:
+            self.contact_energy = self.contacts.compute(e, self.dt)
+        if self.viscous_damping > 0.0:
+            damp_elements(e, self.viscous_damping)
+
+    def rebuild_contacts(self):
+        """Single process: wrap into the periodic cell and rebuild the contact list."""
+        if self.cell is not None:
+            self.cell.wrap(self.elements)
+        self.contacts.rebuild(self.elements, self.bonds)
+
+    def _reference_positions(self):
+        if self.domain is not None:
+            return (self.domain.x_build,)
+        return (self.contacts.reference_positions(),) if self.contacts is not None else ()
 
     def step(self):
         t0 = _time.perf_counter()
         e = self.elements
         kick_drift(e.x, e.v, e.w, e.q, e.rot, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned)
-        self.plates.move_to((self.step_count + 1) * self.dt)
+        if self.cell is not None:
+            self.cell.deform(e, self.dt, self._reference_positions())
+        if self.plates is not None:
+            self.plates.move_to((self.step_count + 1) * self.dt)
         t1 = _time.perf_counter()
         if self.domain is not None:
             self.domain.update(self)   # migration and ghosts, or the ghost refresh
             e = self.elements
+        elif self.contacts is not None and self.contacts.needs_rebuild(e):
+            self.rebuild_contacts()
         t2 = _time.perf_counter()
         self.compute_forces()
+        if self.cell is not None and self.cell.servo is not None:
+            self.stress = self.global_stress()
+            self.cell.control(self.stress)
         vmax2 = kick(e.v, e.w, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned)
         self.seconds_computing += (t1 - t0) + (_time.perf_counter() - t2)
         if not vmax2 <= self.max_speed2:
@@ -106,6 +143,12 @@ class Simulation:
                 f"at step {self.step_count} (t = {self.time:.6g} s): "
                 "NaN or speed above the limit")
 
+    def global_stress(self):
+        """Love-Weber stress of the contacts over the cell [3, 3] [Pa], tension positive
+        (collective; from the sums of the last force evaluation)."""
+        sums = self.comm.sum(self.contacts.sums[:9]) if self.contacts is not None else np.zeros(9)
+        return np.asarray(sums).reshape(3, 3) / self.cell.volume
+
     def kinetic_energy(self):
         e = self.elements
         return float(self.comm.sum(kinetic_energy(e.v, e.w, e.mass, e.inertia, e.n_owned)))
@@ -113,6 +156,8 @@ class Simulation:
     def run(self, n_steps, operations=()):
         """Advance ``n_steps`` steps, running ``operations`` on their periods and at the end."""
         if self.step_count == 0:
+            if self.contacts is not None and self.domain is None and self.contacts.vl.builds == 0:
+                self.rebuild_contacts()
             self.compute_forces()   # forces of the initial state for the first half kick
         end = self.step_count + int(n_steps)
         while self.step_count < end:

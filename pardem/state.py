@@ -160,6 +160,13 @@ class Bonds:
         n = len(keep)
         return cls(i=np.full(n, -1, np.int32), j=np.full(n, -1, np.int32), damped=damped, **data)
 
+    @classmethod
+    def empty(cls):
+        """No bonds (contact-only runs)."""
+        parts = {k: np.zeros((0, 3) if k in ("u1", "p1", "u2", "p2") else 0,
+                             dtype=np.int64 if k.startswith("gid") else np.float64) for k in BOND_FIELDS}
+        return cls.unpack([parts], damped=False)
+
     def counted_once(self, n_owned):
         """Mask of the bonds this rank counts in global sums and files: those whose first
         (lower-gid) end it owns. A bond held by two ranks is thus counted exactly once."""

@@ -10,6 +10,10 @@ Layout (``LAYOUT_VERSION`` 1), readable with plain h5py::
     /bonds/<name>      [B, ...]  each bond once (written by the owner of its lower-gid end)
         gid, gid_i, gid_j, L0 [m], ka [N/m], kb [N m^2], kt [N m/rad], tau_a, tau_b, tau_t [s],
         u1, p1, u2, p2 (body-frame bond axis and twist reference of each end), young [Pa], radius [m]
+    /contacts/<name>   [C, ...]  (contact runs) each rank's contact list in its order, in blocks by
+                                 rank (``contacts_counts`` [n_ranks]): gid_i, gid_j, shifts (int8
+                                 periodic image of j), history (tangential force on i [N]); a pair
+                                 with a ghost end appears in the blocks of both ranks
     /series/<column>   [S]       the reducer's samples so far (see pardem.io.series)
     attributes of /: layout_version, pardem_version, complete (1 once fully written), step, time [s],
         plate_positions [m] and plate_velocities [m/s] along the loading axis (fixed, moving),
@@ -36,6 +40,7 @@ ELEMENT_DATASETS = ("x", "v", "w", "q", "f", "t", "radius", "mass", "inertia", "
                     "gid", "flags")
 BOND_DATASETS = ("gid", "gid_i", "gid_j", "L0", "ka", "kb", "kt", "tau_a", "tau_b", "tau_t",
                  "u1", "p1", "u2", "p2", "young", "radius")
+CONTACT_DATASETS = ("gid_i", "gid_j", "shifts", "history")
 _CHUNK = 1 << 20   # rows read at once when selecting rows
 
 
@@ -74,6 +79,9 @@ def write_checkpoint(path, comm, groups, series, attrs, mode="auto"):
     all_attrs = {**attrs, "layout_version": LAYOUT_VERSION, "pardem_version": pardem.__version__,
                  "n_ranks": comm.size, "owned_counts": layout["elements"][3],
                  "n_elements": layout["elements"][2], "n_bonds": layout["bonds"][2], "complete": 0}
+    for gname, (_, _, total, counts) in layout.items():   # other groups: rows per writing rank
+        if gname not in ("elements", "bonds"):
+            all_attrs[f"{gname}_counts"] = counts
 
     def create(f):
         for k, v in all_attrs.items():
@@ -90,7 +98,9 @@ def write_checkpoint(path, comm, groups, series, attrs, mode="auto"):
 
     def fill(f, collective):
         for gname, arrays in groups.items():
-            off, n, _, _ = layout[gname]
+            off, n, total, _ = layout[gname]
+            if total == 0:   # nothing anywhere: an empty dataset has no storage to write to
+                continue
             for name, a in arrays.items():
                 ds = f[gname][name]
                 if collective:
@@ -175,8 +185,11 @@ def inspect(path):
                     f"this pardem reads version {LAYOUT_VERSION}")
             if int(attrs.get("complete", 0)) != 1:
                 raise CheckpointError(f"--restart {path}: the checkpoint is incomplete (its write was interrupted)")
-            for gname, names, n in (("elements", ELEMENT_DATASETS, attrs["n_elements"]),
-                                    ("bonds", BOND_DATASETS, attrs["n_bonds"])):
+            groups = [("elements", ELEMENT_DATASETS, attrs["n_elements"]),
+                      ("bonds", BOND_DATASETS, attrs["n_bonds"])]
+            if "contacts" in f:
+                groups.append(("contacts", CONTACT_DATASETS, int(np.sum(attrs["contacts_counts"]))))
+            for gname, names, n in groups:
                 for name in names:
                     if f"{gname}/{name}" not in f:
                         raise CheckpointError(f"--restart {path}: dataset /{gname}/{name} is missing")

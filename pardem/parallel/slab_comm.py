@@ -20,6 +20,15 @@ extra message; the price is computing the boundary bonds twice, a fraction ``~ r
 Rebuilds (exchange + borders) happen when an owned element has moved more than half the skin since
 the last one, or when the load balance is re-done; in between, ghosts are valid because every
 element that can interact with an owned one was within ``ghost_range = interaction + skin``.
+
+Contacts: at a rebuild the contact history table (pairs with a non-zero history, keyed by their
+end gids) travels with the migrating elements like the bonds do, then the contact list is rebuilt
+on the new rows (``pardem.contacts``).
+
+Periodic slab axis (a ``PeriodicCell`` periodic along it): the first and last ranks are
+neighbours; positions are wrapped into the cell at each rebuild; an element leaving a slab goes the
+short way round; with two ranks, the single neighbour gets the union of both boundary layers once
+(the neighbour list finds the right periodic image by itself).
 """
 import time
 
@@ -85,7 +94,7 @@ class SlabComm:
     """
 
     def __init__(self, comm, slabs, ghost_range, skin, balance_every=200, threshold=0.05,
-                 balance_by="count"):
+                 balance_by="count", cell=None):
         self.comm = comm
         self.mpi = comm.comm
         self.slabs = slabs
@@ -95,9 +104,14 @@ class SlabComm:
         self.threshold = float(threshold)
         self.balance_by = balance_by
         r, P = comm.rank, comm.size
-        self.left = r - 1 if r > 0 else None
-        self.right = r + 1 if r < P - 1 else None
-        self.neighbours = [n for n in (self.left, self.right) if n is not None]
+        self.cell = cell
+        self.periodic = cell is not None and bool(cell.periodic[slabs.axis]) and P > 1
+        if self.periodic:
+            self.left, self.right = (r - 1) % P, (r + 1) % P
+        else:
+            self.left = r - 1 if r > 0 else None
+            self.right = r + 1 if r < P - 1 else None
+        self.neighbours = sorted({n for n in (self.left, self.right) if n is not None})
         self.send_rows = {}
         self.recv_start = {}
         self.recv_count = {}
@@ -113,24 +127,47 @@ class SlabComm:
 
     def setup(self, elements, bonds):
         """Migrate, build ghosts and relink: returns the new (elements, bonds)."""
-        elements, bonds = self.exchange(elements, bonds)
+        elements, bonds, _ = self.exchange(elements, bonds)
         return self.borders(elements, bonds)
+
+    def setup_with_pairs(self, elements, bonds, table):
+        """``setup`` that also migrates the contact history ``table``; returns (elements, bonds,
+        table) with the table entries touching an owned element."""
+        if self.cell is not None:
+            self.cell.wrap(elements)
+        elements, bonds, table = self.exchange(elements, bonds, table)
+        elements, bonds = self.borders(elements, bonds)
+        return elements, bonds, table
+
+    def _destinations(self, owner):
+        """{neighbour: mask} of the owned rows to send each way (``None``: left the domain)."""
+        r = self.comm.rank
+        if not self.periodic:
+            return {self.left: owner < r, self.right: owner > r}
+        d = (owner - r) % self.comm.size
+        right = (d > 0) & (d <= self.comm.size // 2)
+        left = d > self.comm.size // 2
+        if self.left == self.right:
+            return {self.left: left | right}
+        return {self.left: left, self.right: right}
 
     def _key(self, e, n):
         return e.x[:n, self.slabs.axis], e.gid[:n]
 
-    def exchange(self, elements, bonds):
-        """Move owned elements (with their bonds) to the ranks owning their keys; drop ghosts.
+    def exchange(self, elements, bonds, table=None):
+        """Move owned elements (with their bonds and contact history) to the ranks owning their
+        keys; drop ghosts.
 
-        Returns owned-only elements sorted by gid, and the bonds with at least one owned end
-        (``i, j`` not yet linked: ``borders`` does it).
+        Returns owned-only elements sorted by gid, the bonds with at least one owned end (``i, j``
+        not yet linked: ``borders`` does it) and the entries of ``table`` (gid_i, gid_j, ...) with
+        at least one owned end (None when ``table`` is None).
         """
         axis = self.slabs.axis
         cur = elements.pack(slice(0, elements.n_owned))
         cur_bonds = bonds.pack(slice(0, bonds.n))
         for _ in range(self.comm.size):
             owner = self.slabs.owner(cur["x"][:, axis], cur["gid"])
-            go = {self.left: owner < self.comm.rank, self.right: owner > self.comm.rank}
+            go = self._destinations(owner)
             if not self.comm.any(np.any(owner != self.comm.rank)):
                 break
             if go.pop(None, np.zeros(0, bool)).any():
@@ -139,15 +176,23 @@ class SlabComm:
             for nb, mask in go.items():
                 gids = cur["gid"][mask]
                 touch = np.isin(cur_bonds["gid_i"], gids) | np.isin(cur_bonds["gid_j"], gids)
-                out[nb] = (_select(cur, mask), _select(cur_bonds, touch))
+                sent = None
+                if table is not None:
+                    sent = _select(table, np.isin(table["gid_i"], gids) | np.isin(table["gid_j"], gids))
+                out[nb] = (_select(cur, mask), _select(cur_bonds, touch), sent)
             got = [g for g in self._swap(out, _TAG_EXCHANGE).values() if g is not None]
             cur = _concat([_select(cur, owner == self.comm.rank)] + [g[0] for g in got])
             cur_bonds = _concat([cur_bonds] + [g[1] for g in got])
+            if table is not None:
+                table = _concat([table] + [g[2] for g in got])
         else:
             raise DecompositionError("elements still misplaced after one pass per rank")
         cur = _select(cur, np.argsort(cur["gid"], kind="stable"))
         mine = np.isin(cur_bonds["gid_i"], cur["gid"]) | np.isin(cur_bonds["gid_j"], cur["gid"])
-        return Elements.unpack([cur], len(cur["gid"])), Bonds.unpack([_select(cur_bonds, mine)], bonds.damped)
+        if table is not None:
+            table = _select(table, np.isin(table["gid_i"], cur["gid"]) | np.isin(table["gid_j"], cur["gid"]))
+        return (Elements.unpack([cur], len(cur["gid"])), Bonds.unpack([_select(cur_bonds, mine)], bonds.damped),
+                table)
 
     def _swap(self, out, tag):
         """Send ``out[neighbour]`` (pickled; None if absent) to each neighbour and receive what it
@@ -158,21 +203,37 @@ class SlabComm:
             r.wait()
         return got
 
-    def borders(self, elements, bonds):
-        """Ghost rows from the neighbours within ``ghost_range`` of each boundary; relinks bonds."""
+    def _bounds(self, rank):
+        lo, hi = self.slabs.bounds(rank)
+        if self.periodic:   # the end slabs stop at the cell's faces
+            a = self.slabs.axis
+            lo, hi = max(lo, self.cell.lo[a]), min(hi, self.cell.hi[a])
+        return lo, hi
+
+    def _narrowest(self):
+        if not self.periodic:
+            return self.slabs.narrowest_interior()
+        return min(np.subtract(*self._bounds(r)[::-1]) for r in range(self.comm.size))
+
+    def borders(self, elements, bonds, extra=0.0):
+        """Ghost rows from the neighbours within ``ghost_range`` (+ ``extra`` [m]) of each boundary;
+        relinks bonds. (A restart takes ``extra = skin`` to hold every partner of a stored contact
+        list whatever the elements did since its build.)"""
         e = elements
         n = e.n_owned
-        if self.slabs.narrowest_interior() < self.ghost_range:
+        if self._narrowest() < self.ghost_range:
             raise DecompositionError(
-                f"a slab is {self.slabs.narrowest_interior():.4g} m thin, less than the ghost range "
+                f"a slab is {self._narrowest():.4g} m thin, less than the ghost range "
                 f"{self.ghost_range:.4g} m: use fewer ranks for this domain")
-        lo, hi = self.slabs.bounds(self.comm.rank)
+        lo, hi = self._bounds(self.comm.rank)
         s = e.x[:n, self.slabs.axis]
+        reach = self.ghost_range + extra
         rows = {}
         if self.left is not None:
-            rows[self.left] = np.nonzero(s < lo + self.ghost_range)[0]
+            rows[self.left] = np.nonzero(s < lo + reach)[0]
         if self.right is not None:
-            rows[self.right] = np.nonzero(s >= hi - self.ghost_range)[0]
+            right = np.nonzero(s >= hi - reach)[0]
+            rows[self.right] = np.union1d(rows[self.right], right) if self.right == self.left else right
         got = self._swap({nb: e.pack(r) for nb, r in rows.items()}, _TAG_BORDERS)
         parts = [e.pack(slice(0, n))]
         start = n
@@ -227,11 +288,19 @@ class SlabComm:
         moved = self.comm.max(moved)
         if not np.isfinite(moved):
             sim.check_stability(force=True)
-        if rebalance or moved > (0.5 * self.skin) ** 2:
+        contacts = sim.contacts
+        used = contacts.budget_used(moved) if contacts is not None else moved > (0.5 * self.skin) ** 2
+        if rebalance or used:
+            if self.cell is not None:
+                self.cell.wrap(e)
             if rebalance:
                 self._recut(sim)
             try:
-                sim.elements, sim.bonds = self.setup(e, sim.bonds)
+                if contacts is None:
+                    sim.elements, sim.bonds = self.setup(e, sim.bonds)
+                else:
+                    sim.elements, sim.bonds, table = self.setup_with_pairs(e, sim.bonds, contacts.table())
+                    contacts.rebuild(sim.elements, sim.bonds, table)
             except BondOutOfReach as err:
                 # during a run a bond stretched by a quarter of its length means the motion blew up
                 raise InstabilityError(f"at step {sim.step_count}: {err}") from None

@@ -57,6 +57,36 @@ def relative_motion(i, j, v, w, n0, n1, n2, li, lj):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1, n2, g0, g1, g2):
+    """Add the affine part of the relative motion in a cell deforming at diagonal rate ``g`` [1/s].
+
+    In a deforming periodic cell the positions follow the affine field ``g x`` besides the
+    velocities (which are the fluctuations about it), so the contact point of i moves relative to
+    that of j by the extra velocity ``-g d`` (``d`` = branch vector i -> j). Returns the corrected
+    ``(un, ut0, ut1, ut2)``.
+    """
+    a0 = -g0 * d0
+    a1 = -g1 * d1
+    a2 = -g2 * d2
+    an = a0 * n0 + a1 * n1 + a2 * n2
+    return un + an, ut0 + a0 - an * n0, ut1 + a1 - an * n1, ut2 + a2 - an * n2
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def accumulate_pair(acc, d0, d1, d2, out):
+    """Love-Weber sums of one pair: ``acc[3 a + b] += d_a F_i,b`` and ``acc[9] += 1`` (contacts).
+
+    ``d`` [m] is the branch vector i -> j and ``F_i = out[0:3]`` the force on i, so a repulsive
+    contact adds a negative diagonal: the stress ``acc[:9] / V`` is positive in tension.
+    """
+    for b in range(3):
+        acc[b] += d0 * out[b]
+        acc[3 + b] += d1 * out[b]
+        acc[6 + b] += d2 * out[b]
+    acc[9] += 1.0
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def carry_history(hist, p, n0, n1, n2, spin_angle):
     """Carry the stored tangential force ``hist[p]`` into the plane normal to unit ``n``, in place.
 
@@ -154,3 +184,4 @@ def check_pairs(i, j, history, shift):
 
 
 NO_SHIFT = np.zeros((0, 3))
+NO_RATE = np.zeros(3)

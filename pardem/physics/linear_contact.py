@@ -47,8 +47,9 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from pardem.physics.contact_frame import (NO_SHIFT, check_pairs, clear_history, coulomb_cap,
-                                          relative_motion, scatter_pair, update_history, write_pair)
+from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, accumulate_pair, affine_motion,
+                                          check_pairs, clear_history, coulomb_cap, relative_motion,
+                                          scatter_pair, update_history, write_pair)
 
 
 def restitution(zeta):
@@ -131,12 +132,15 @@ class Params:
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def linear_pair(p, i, j, s0, s1, s2, x, v, w, radius, mass, hist, dt, kn, kt, mu, zeta_n, zeta_t,
-                out, damped):
+def linear_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, hist, dt, kn, kt, mu, zeta_n, zeta_t,
+                out, damped, deforming):
     """Contact of rows i and j (image shift ``s`` [m] added to ``x_j``), history row ``hist[p]``.
 
+    ``g`` [1/s]: diagonal strain rate of a deforming periodic cell (velocities are then the
+    fluctuations about the affine field, see ``contact_frame.affine_motion``).
+
     Writes ``out[9]`` = (F_i, T_i, T_j) and updates ``hist[p]`` when the spheres touch; clears
-    ``hist[p]`` otherwise. ``damped`` must be a compile-time constant. Returns
+    ``hist[p]`` otherwise. ``damped`` and ``deforming`` must be compile-time constants. Returns
     ``(touching, elastic energy [J])``.
     """
     d0 = (x[j, 0] - x[i, 0]) + s0
@@ -158,6 +162,8 @@ def linear_pair(p, i, j, s0, s1, s2, x, v, w, radius, mass, hist, dt, kn, kt, mu
     li = ri - 0.5 * delta
     lj = rj - 0.5 * delta
     un, ut0, ut1, ut2, spin = relative_motion(i, j, v, w, n0, n1, n2, li, lj)
+    if deforming:
+        un, ut0, ut1, ut2 = affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1, n2, g0, g1, g2)
     fn = kn * delta
     m_star = mass[i] * mass[j] / (mass[i] + mass[j])
     if damped:
@@ -176,25 +182,33 @@ def linear_pair(p, i, j, s0, s1, s2, x, v, w, radius, mass, hist, dt, kn, kt, mu
     return True, energy
 
 
-def _pair_loop(damped, shifted):
-    """Loop over a pair list; ``damped`` and ``shifted`` are frozen as compile-time constants."""
+def _pair_loop(damped, periodic):
+    """Loop over a pair list; ``damped`` and ``periodic`` are frozen as compile-time constants
+    (``periodic``: image shifts and the strain rate of the cell are read)."""
     @njit(cache=True, error_model="numpy")
-    def loop(pi, pj, shift, x, v, w, radius, mass, f, t, hist, dt, kn, kt, mu, zeta_n, zeta_t):
+    def loop(pi, pj, shift, rate, x, v, w, radius, mass, f, t, hist, dt, kn, kt, mu, zeta_n, zeta_t,
+             n_owned, acc):
         out = np.empty(9)
         energy = 0.0
         s0 = s1 = s2 = 0.0
+        g0 = g1 = g2 = 0.0
+        if periodic:
+            g0, g1, g2 = rate[0], rate[1], rate[2]
         for p in range(pi.shape[0]):
             i = pi[p]
             j = pj[p]
-            if shifted:
+            if periodic:
                 s0 = shift[p, 0]
                 s1 = shift[p, 1]
                 s2 = shift[p, 2]
-            touching, e = linear_pair(p, i, j, s0, s1, s2, x, v, w, radius, mass, hist, dt,
-                                      kn, kt, mu, zeta_n, zeta_t, out, damped)
+            touching, e = linear_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, hist,
+                                      dt, kn, kt, mu, zeta_n, zeta_t, out, damped, periodic)
             if touching:
                 scatter_pair(i, j, f, t, out)
-                energy += e
+                if i < n_owned:   # counted once over the ranks (the owner of the lower gid)
+                    energy += e
+                    accumulate_pair(acc, (x[j, 0] - x[i, 0]) + s0, (x[j, 1] - x[i, 1]) + s1,
+                                    (x[j, 2] - x[i, 2]) + s2, out)
         return energy
     return loop
 
@@ -209,8 +223,9 @@ def _all_pairs_loop(damped):
         for i in range(n):
             hist_i = hist_full[i]
             for j in range(i + 1, n):
-                touching, e = linear_pair(j, i, j, 0.0, 0.0, 0.0, x, v, w, radius, mass, hist_i,
-                                          dt, kn, kt, mu, zeta_n, zeta_t, out, damped)
+                touching, e = linear_pair(j, i, j, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, x, v, w, radius,
+                                          mass, hist_i, dt, kn, kt, mu, zeta_n, zeta_t, out, damped,
+                                          False)
                 if touching:
                     scatter_pair(i, j, f, t, out)
                     energy += e
@@ -219,15 +234,13 @@ def _all_pairs_loop(damped):
 
 
 @lru_cache(maxsize=None)
-def pair_loop(damped, shifted):
+def pair_loop(damped, periodic):
     """The compiled pair-list kernel for one sub-model choice (built once per choice).
 
-    ``loop(i, j, shift, x, v, w, radius, mass, f, t, history, dt, kn, kt, mu, zeta_n, zeta_t)``
-    adds the pair forces and torques to ``f``, ``t`` (owned and ghost rows alike), updates
-    ``history`` [n_pairs, 3] and returns the elastic energy [J]. ``shift`` [n_pairs, 3] is read only
-    when ``shifted``.
+    ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, kn, kt, mu, zeta_n, zeta_t,
+    n_owned, acc)``: same contract as ``hertz_mindlin.pair_loop``.
     """
-    return _pair_loop(bool(damped), bool(shifted))
+    return _pair_loop(bool(damped), bool(periodic))
 
 
 @lru_cache(maxsize=None)
@@ -242,7 +255,7 @@ def cutoff(params, rmax):
     return 2.0 * float(rmax)
 
 
-def compute(params, elements, i, j, history, dt, shift=None):
+def compute(params, elements, i, j, history, dt, shift=None, rate=None, acc=None):
     """Add the contact forces of the pairs ``(i[p], j[p])`` to ``elements.f``/``elements.t``.
 
     Same arguments as ``hertz_mindlin.compute``. Returns the elastic energy [J].
@@ -250,8 +263,9 @@ def compute(params, elements, i, j, history, dt, shift=None):
     check_pairs(i, j, history, shift)
     e, p = elements, params
     loop = pair_loop(p.damped, shift is not None)
-    return loop(i, j, NO_SHIFT if shift is None else shift, e.x, e.v, e.w, e.radius, e.mass, e.f,
-                e.t, history, float(dt), p.kn, p.kt, p.friction, p.zeta_n, p.zeta_t)
+    return loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
+                e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history, float(dt), p.kn, p.kt,
+                p.friction, p.zeta_n, p.zeta_t, e.n_owned, np.zeros(10) if acc is None else acc)
 
 
 def compute_all_pairs(params, elements, history_full, dt):
@@ -277,7 +291,7 @@ def single(params, elements, i, j, history_row, dt, shift=(0.0, 0.0, 0.0)):
 @njit(cache=True, error_model="numpy")
 def _single_kernel(i, j, s, x, v, w, radius, mass, hist, dt, kn, kt, mu, zeta_n, zeta_t, out, damped):
     if damped:
-        return linear_pair(0, i, j, s[0], s[1], s[2], x, v, w, radius, mass, hist, dt,
-                           kn, kt, mu, zeta_n, zeta_t, out, True)
-    return linear_pair(0, i, j, s[0], s[1], s[2], x, v, w, radius, mass, hist, dt,
-                       kn, kt, mu, zeta_n, zeta_t, out, False)
+        return linear_pair(0, i, j, s[0], s[1], s[2], 0.0, 0.0, 0.0, x, v, w, radius, mass, hist,
+                           dt, kn, kt, mu, zeta_n, zeta_t, out, True, False)
+    return linear_pair(0, i, j, s[0], s[1], s[2], 0.0, 0.0, 0.0, x, v, w, radius, mass, hist, dt,
+                       kn, kt, mu, zeta_n, zeta_t, out, False, False)

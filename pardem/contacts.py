@@ -1,0 +1,163 @@
+"""Sphere-sphere contacts of one rank: the Verlet list, the per-pair history and the force call.
+
+One contact law per run (``hertz_mindlin`` or ``linear_contact``, the model interface of STYLE
+pattern 3: ``Params``, ``compute``). Pairs come from ``pardem.physics.neighbours.VerletList`` with
+at least one owned end, ordered by global id; a pair joined by an intact bond is left out (the
+bond carries the interaction).
+
+History (the tangential elastic force, [n_pairs, 3] N) belongs to a pair, not to rows: it is keyed
+by the gid pair ``key = gid_i * 2^31 + gid_j``. At every list rebuild the table of the previous
+list (plus what migration brought) is looked up by key, so the history survives rebuilds, element
+migration between ranks and checkpoints. Only pairs in contact carry a non-zero history, and only
+those travel.
+
+A pair with one ghost end is computed by both ranks from bitwise-identical inputs, so both hold
+the same history; the energy and the Love-Weber sums count a pair on the rank owning its lower-gid
+end only.
+"""
+import numpy as np
+
+from pardem.physics.neighbours import VerletList, max_displacement2
+
+KEY_BASE = np.int64(1) << np.int64(31)
+
+
+def pair_keys(gid_i, gid_j):
+    """int64 key of each gid pair (``gid_i < gid_j < 2^31``)."""
+    return np.asarray(gid_i, dtype=np.int64) * KEY_BASE + np.asarray(gid_j, dtype=np.int64)
+
+
+def lookup(keys, table_keys, table_values, width):
+    """Rows of ``table_values`` for ``keys`` (zeros for keys not in the table)."""
+    out = np.zeros((len(keys), width))
+    if len(table_keys) == 0 or len(keys) == 0:
+        return out
+    order = np.argsort(table_keys, kind="stable")
+    sk = table_keys[order]
+    pos = np.minimum(np.searchsorted(sk, keys), len(sk) - 1)
+    hit = sk[pos] == keys
+    out[hit] = table_values[order[pos[hit]]]
+    return out
+
+
+class Contacts:
+    """Contacts of one rank's elements under ``law`` (module) with ``params``.
+
+    skin [m]: Verlet skin; cell: the ``PeriodicCell`` or None; reach [m]: the largest centre
+    distance of a listed pair, ``2 R_max + skin`` over all ranks (it scales the rebuild margin of
+    a deforming cell, so it must be the same on every rank). After ``rebuild``: ``i, j`` int32
+    rows, ``shifts`` int8 [n, 3] image of j, ``keys`` int64, ``history`` [n, 3] [N].
+    After ``compute``: ``energy`` [J] and ``sums`` [10] (Love-Weber sums and contact count, this
+    rank's share; see ``contact_frame.accumulate_pair``).
+    """
+
+    WIDTH = 3
+
+    def __init__(self, law, params, skin, cell=None, reach=0.0):
+        self.law = law
+        self.params = params
+        self.skin = float(skin)
+        self.cell = cell
+        periodic = (False,) * 3 if cell is None else tuple(bool(p) for p in cell.periodic)
+        self.periodic = any(periodic)
+        self.vl = VerletList(self.skin, periodic=periodic)
+        self.i = np.zeros(0, np.int32)
+        self.j = np.zeros(0, np.int32)
+        self.shifts = np.zeros((0, 3), np.int8)
+        self.shift = None
+        self.keys = np.zeros(0, np.int64)
+        self.history = np.zeros((0, self.WIDTH))
+        self.energy = 0.0
+        self.sums = np.zeros(10)
+        self.builds = 0
+        self.cut = float(reach)
+
+    # -- list -----------------------------------------------------------------------------
+
+    def table(self):
+        """The pairs with a non-zero history: ``{"gid_i", "gid_j", "history"}`` (for migration)."""
+        live = np.any(self.history != 0.0, axis=1)
+        return {"gid_i": self.keys[live] // KEY_BASE, "gid_j": self.keys[live] % KEY_BASE,
+                "history": self.history[live]}
+
+    def rebuild(self, elements, bonds=None, table=None):
+        """New list from the current rows; history looked up in ``table`` (default: the old list)."""
+        e = elements
+        if table is None:
+            table = self.table()
+        if e.gid.size and int(e.gid.max()) >= int(KEY_BASE):
+            raise ValueError("element gids must be below 2^31 for the contact keys")
+        kw = {}
+        if self.cell is not None:
+            kw = {"box_lo": self.cell.lo, "box_hi": self.cell.hi}
+        self.vl.rebuild(e.x, e.radius, e.gid, e.n_owned, e.n_total, **kw)
+        pairs, shifts = self.vl.pairs, self.vl.shifts
+        keys = pair_keys(e.gid[pairs[:, 0]], e.gid[pairs[:, 1]])
+        if bonds is not None and bonds.n:
+            keep = ~np.isin(keys, pair_keys(bonds.gid_i, bonds.gid_j))
+            pairs, shifts, keys = pairs[keep], shifts[keep], keys[keep]
+        self.adopt(pairs[:, 0], pairs[:, 1], shifts, keys,
+                   lookup(keys, pair_keys(table["gid_i"], table["gid_j"]), table["history"], self.WIDTH))
+        if self.cell is not None:
+            self.cell.strain_since_build = 0.0
+
+    def adopt(self, i, j, shifts, keys, history):
+        """Take a given list (rebuilds, and restarts on the same ranks: same order, same sums)."""
+        self.i = np.ascontiguousarray(i, dtype=np.int32)
+        self.j = np.ascontiguousarray(j, dtype=np.int32)
+        self.shifts = np.ascontiguousarray(shifts, dtype=np.int8)
+        self.keys = np.ascontiguousarray(keys, dtype=np.int64)
+        self.history = np.ascontiguousarray(history, dtype=np.float64)
+        self.shift = self.cell.shift_metres(self.shifts) if self.periodic else None
+        self.builds += 1
+
+    def budget_used(self, moved2):
+        """True when the skin is used up: the largest displacement ``sqrt(moved2)`` [m] (fluctuation
+        only, the affine part is in the cell's strain) plus the strain's change of pair distances
+        exceeds ``skin / 2``."""
+        strain = 0.0 if self.cell is None else self.cell.strain_since_build
+        margin = 0.5 * self.skin - 0.5 * strain * max(self.cut, self.skin)
+        return margin <= 0.0 or moved2 > margin * margin
+
+    def needs_rebuild(self, elements):
+        """Single-process check (the parallel layer reduces ``max_displacement2`` instead)."""
+        if self.vl.builds == 0:
+            return True
+        return self.budget_used(max_displacement2(elements.x, self.vl.x_build, elements.n_owned))
+
+    def restore(self, elements, gid_i, gid_j, shifts, history, x_build=None):
+        """Take back a stored list (gid ends in list order) on the rows of ``elements``; with
+        ``x_build`` [n_owned, 3] (single process) the rebuild reference positions too."""
+        e = elements
+        order = np.argsort(e.gid, kind="stable")
+        rows_i = order[np.searchsorted(e.gid[order], gid_i)]
+        rows_j = order[np.searchsorted(e.gid[order], gid_j)]
+        if len(gid_i) and (np.any(e.gid[rows_i] != gid_i) or np.any(e.gid[rows_j] != gid_j)):
+            raise ValueError("a stored contact's element is not held by this rank")
+        self.adopt(rows_i, rows_j, shifts, pair_keys(gid_i, gid_j), history)
+        if x_build is not None:
+            self.vl.x_build = np.array(x_build, dtype=np.float64)
+            self.vl.n_owned = self.vl.n_total = e.n_owned
+            self.vl.builds = 1
+
+    def reference_positions(self):
+        """Positions of the last build [n_total, 3] (mapped with the cell when it deforms)."""
+        return self.vl.x_build
+
+    # -- forces ---------------------------------------------------------------------------
+
+    def compute(self, elements, dt):
+        """Add the contact forces to ``elements.f``, ``elements.t``; returns the energy [J]."""
+        rate = None
+        if self.periodic:
+            if self.cell.deforming:
+                self.shift = self.cell.shift_metres(self.shifts)
+            rate = self.cell.rate
+        self.sums[:] = 0.0
+        self.energy = float(self.law.compute(self.params, elements, self.i, self.j, self.history,
+                                             dt, self.shift, rate, self.sums))
+        return self.energy
+
+    def counted_once(self, n_owned):
+        """Mask of the pairs this rank writes to files and sums (lower-gid end owned)."""
+        return self.i < n_owned

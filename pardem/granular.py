@@ -1,0 +1,193 @@
+"""Granular cases: spheres interacting by contact in a periodic cell, on any number of ranks.
+
+Composes the pieces (no physics here): ``Elements`` from given centres and radii, the
+``PeriodicCell``, ``Contacts`` with one law, the slab layer when there are several ranks (periodic
+slab axis allowed), and a ``Simulation``; plus the checkpoint payload and the restart of such a
+case. Used by the GRAN benchmark, the granular tests and the granular drivers.
+
+The contact history lives in the checkpoint as each rank's list (see ``pardem.io.checkpoint``), so
+a restart on the same number of ranks continues bit for bit; on another number of ranks the lists
+are rebuilt and the histories found again by their gid pairs.
+"""
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pardem.contacts import Contacts, pair_keys
+from pardem.io import checkpoint
+from pardem.io.checkpoint import CONTACT_DATASETS, ELEMENT_DATASETS
+from pardem.parallel.slab_comm import SlabComm
+from pardem.parallel.slabs import Slabs
+from pardem.periodic_cell import PeriodicCell
+from pardem.physics import hertz_mindlin, linear_contact
+from pardem.simulation import Simulation
+from pardem.state import Bonds, Elements
+
+LAWS = {"hertz_mindlin": hertz_mindlin, "linear": linear_contact}
+
+
+def simple_cubic(n, radius, spacing=1.998, jitter=0.0002, seed=12345):
+    """Centres [n^3, 3] of a simple cubic lattice of spacing ``spacing * radius`` jittered by
+    ``+-jitter * radius`` per axis (uniform, seeded), and the periodic box edge [m]."""
+    rng = np.random.default_rng(seed)
+    a = spacing * radius
+    g = np.arange(n) * a + 0.5 * a
+    X, Y, Z = np.meshgrid(g, g, g, indexing="ij")
+    pos = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
+    pos += rng.uniform(-jitter * radius, jitter * radius, size=pos.shape)
+    return pos, n * a
+
+
+@dataclass
+class GranularCase:
+    """A granular simulation on this rank and the constants needed to restart it."""
+    sim: Simulation
+    constants: dict = field(default_factory=dict)
+
+
+def law_params(law, params):
+    """The ``Params`` of ``law`` ("hertz_mindlin" or "linear") from a dict (checked there)."""
+    if law not in LAWS:
+        raise ValueError(f"contact law {law!r}: expected one of {', '.join(LAWS)}")
+    return LAWS[law].Params(**params)
+
+
+def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, skin,
+          periodic=(True, True, True), rate=(0.0, 0.0, 0.0), servo=None, viscous_damping=0.0,
+          velocities=None, angular_velocities=None, slab_axis=0, balance_every=0):
+    """A granular case from global centres [n, 3] and radii [n] (every rank passes the same).
+
+    density [kg/m^3]; law, params: the contact law and its parameters (dict); box_lo [3],
+    box_length [3] [m]: the periodic cell; dt [s]; skin [m]; rate [3] [1/s], servo
+    ``(p0, gain, max_rate)``: the cell's deformation; velocities [n, 3] [m/s] optional.
+    Rank r keeps its slab's elements (slabs along ``slab_axis``, balanced counts).
+    """
+    pos = np.asarray(positions, dtype=np.float64)
+    n = len(pos)
+    radii = np.broadcast_to(np.asarray(radii, dtype=np.float64), (n,))
+    gids = np.arange(n, dtype=np.int64)
+    cell = PeriodicCell(box_lo, box_length, periodic, rate, servo)
+    reach = 2.0 * float(radii.max()) + float(skin)
+    constants = {"density": float(density), "law": law, "params": dict(params), "dt": float(dt),
+                 "skin": float(skin), "reach": reach, "slab_axis": int(slab_axis),
+                 "viscous_damping": float(viscous_damping), "n_elements": n,
+                 "balance_every": int(balance_every)}
+    contacts = Contacts(LAWS[law], law_params(law, params), skin, cell, reach=reach)
+    domain = None
+    if comm.size > 1:
+        stripe = slice(comm.rank, None, comm.size)
+        slabs = Slabs.balanced(comm, slab_axis, pos[stripe, slab_axis], gids[stripe])
+        owned = slabs.owner(pos[:, slab_axis], gids) == comm.rank
+    else:
+        owned = np.ones(n, dtype=bool)
+    e = Elements.from_spheres(pos[owned], radii[owned], density, gids[owned])
+    if velocities is not None:
+        e.v[:] = np.asarray(velocities)[owned]
+    if angular_velocities is not None:
+        e.w[:] = np.asarray(angular_velocities)[owned]
+    bonds = Bonds.empty()
+    if comm.size > 1:
+        domain = SlabComm(comm, slabs, reach, skin, balance_every=balance_every, cell=cell)
+        e, bonds, table = domain.setup_with_pairs(e, bonds, contacts.table())
+        contacts.rebuild(e, bonds, table)
+    sim = Simulation(comm, e, bonds, None, dt, domain=domain, contacts=contacts, cell=cell,
+                     viscous_damping=viscous_damping)
+    return GranularCase(sim=sim, constants=constants)
+
+
+def checkpoint_payload(case):
+    """(groups, series, attrs) for ``checkpoint.write_checkpoint`` (every rank)."""
+    sim = case.sim
+    e, c = sim.elements, sim.contacts
+    n = e.n_owned
+    elements = {k: getattr(e, k)[:n] for k in ELEMENT_DATASETS if k != "x_build"}
+    x_build = sim.domain.x_build if sim.domain is not None else c.reference_positions()[:n]
+    elements["x_build"] = x_build
+    bonds = Bonds.empty()
+    contacts = {"gid_i": e.gid[c.i], "gid_j": e.gid[c.j], "shifts": c.shifts, "history": c.history}
+    slabs = sim.domain.slabs if sim.domain is not None else None
+    attrs = {"step": sim.step_count, "time": sim.time, "deck": {"kind": "granular"},
+             "constants": case.constants, "cell": sim.cell.state(),
+             "rng_state": {"generator": None}, "plate_positions": np.zeros(0),
+             "plate_velocities": np.zeros(0), "slab_axis": case.constants["slab_axis"],
+             "slab_cut_s": slabs.cut_s if slabs is not None else np.zeros(0),
+             "slab_cut_g": slabs.cut_g if slabs is not None else np.zeros(0, dtype=np.int64)}
+    return {"elements": elements, "bonds": {k: getattr(bonds, k) for k in checkpoint.BOND_DATASETS},
+            "contacts": contacts}, {}, attrs
+
+
+def write(case, path, mode="auto"):
+    groups, series, attrs = checkpoint_payload(case)
+    checkpoint.write_checkpoint(path, case.sim.comm, groups, series, attrs, mode=mode)
+
+
+def restore(comm, path):
+    """The granular case of checkpoint ``path`` on ``comm`` (any number of ranks)."""
+    import json
+    meta = checkpoint.inspect(path)
+    c = meta["constants"]
+    cell_state = meta["cell"]
+    cell = PeriodicCell.from_state(json.loads(cell_state) if isinstance(cell_state, str) else cell_state)
+    axis = int(c["slab_axis"])
+    same = int(meta["n_ranks"]) == comm.size
+    names = list(ELEMENT_DATASETS)
+    if same:
+        counts = np.asarray(meta["owned_counts"], dtype=np.int64)
+        off = int(counts[:comm.rank].sum())
+        el = checkpoint.read_rows(path, "elements", names, slice(off, off + int(counts[comm.rank])))
+        ccounts = np.asarray(meta["contacts_counts"], dtype=np.int64)
+        coff = int(ccounts[:comm.rank].sum())
+        cl = checkpoint.read_rows(path, "contacts", list(CONTACT_DATASETS),
+                                  slice(coff, coff + int(ccounts[comm.rank])))
+        slabs = Slabs(axis, meta["slab_cut_s"], meta["slab_cut_g"]) if comm.size > 1 else None
+    else:
+        N = int(meta["n_elements"])
+        stripe = slice(comm.rank * N // comm.size, (comm.rank + 1) * N // comm.size)
+        chunk = checkpoint.read_rows(path, "elements", ["x", "gid"], stripe)
+        slabs = None
+        if comm.size > 1:
+            slabs = Slabs.balanced(comm, axis, chunk["x"][:, axis], chunk["gid"])
+            el = checkpoint.read_rows(path, "elements", names, (["x", "gid"], lambda d: slabs.owner(
+                d["x"][:, axis], d["gid"]) == comm.rank))
+        else:
+            el = checkpoint.read_rows(path, "elements", names, slice(0, N))
+        cl = checkpoint.read_rows(path, "contacts", list(CONTACT_DATASETS), slice(0, None))
+    el["inv_mass"] = 1.0 / el["mass"]
+    el["inv_inertia"] = 1.0 / el["inertia"]
+    e = Elements.unpack([el], len(el["gid"]), copy=False)
+    contacts = Contacts(LAWS[c["law"]], law_params(c["law"], c["params"]), c["skin"], cell,
+                        reach=c["reach"])
+    bonds = Bonds.empty()
+    domain = None
+    if same:
+        if comm.size > 1:
+            domain = SlabComm(comm, slabs, c["reach"], c["skin"], balance_every=c["balance_every"],
+                              cell=cell)
+            e, bonds = domain.borders(e, bonds, extra=c["skin"])
+            domain.x_build = el["x_build"].copy()
+            contacts.restore(e, cl["gid_i"], cl["gid_j"], cl["shifts"], cl["history"])
+        else:
+            contacts.restore(e, cl["gid_i"], cl["gid_j"], cl["shifts"], cl["history"],
+                             x_build=el["x_build"])
+        e.f[:e.n_owned] = el["f"]      # borders keeps the owned rows in their order
+        e.t[:e.n_owned] = el["t"]
+    else:
+        live = np.any(cl["history"] != 0.0, axis=1)
+        keys, first = np.unique(pair_keys(cl["gid_i"][live], cl["gid_j"][live]), return_index=True)
+        table = {k: cl[k][live][first] for k in ("gid_i", "gid_j", "history")}
+        if comm.size > 1:
+            domain = SlabComm(comm, slabs, c["reach"], c["skin"], balance_every=c["balance_every"],
+                              cell=cell)
+            e, bonds, table = domain.setup_with_pairs(e, bonds, table)
+        else:
+            cell.wrap(e)
+        contacts.rebuild(e, bonds, table)
+        srt = np.argsort(el["gid"])     # forces of the stored state, by gid (rows were reordered)
+        order = srt[np.searchsorted(el["gid"][srt], e.gid[:e.n_owned])]
+        e.f[:e.n_owned] = el["f"][order]
+        e.t[:e.n_owned] = el["t"][order]
+    sim = Simulation(comm, e, bonds, None, c["dt"], domain=domain, contacts=contacts, cell=cell,
+                     viscous_damping=c["viscous_damping"])
+    sim.step_count = int(meta["step"])
+    sim.time = sim.step_count * sim.dt
+    return GranularCase(sim=sim, constants=c)
