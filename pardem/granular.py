@@ -20,6 +20,7 @@ from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs
 from pardem.periodic_cell import PeriodicCell
 from pardem.physics import hertz_mindlin, linear_contact
+from pardem.physics.timestep import linear_contact_time_step, rayleigh_time_step
 from pardem.simulation import Simulation
 from pardem.state import Bonds, Elements
 
@@ -52,6 +53,16 @@ def law_params(law, params):
     return LAWS[law].Params(**params)
 
 
+def critical_time_step(law, params, radii, density):
+    """The contact law's critical step [s] for these spheres (``pardem.physics.timestep``)."""
+    r_min = float(np.min(radii))
+    if law == "hertz_mindlin":
+        g = params.young / (2.0 * (1.0 + params.poisson))
+        return rayleigh_time_step(r_min, density, g, params.poisson)
+    m_min = density * 4.0 / 3.0 * np.pi * r_min**3
+    return linear_contact_time_step(m_min, params.kn, params.zeta_n)
+
+
 def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, skin,
           periodic=(True, True, True), rate=(0.0, 0.0, 0.0), servo=None, viscous_damping=0.0,
           velocities=None, angular_velocities=None, slab_axis=0, balance_every=0):
@@ -65,14 +76,19 @@ def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, 
     pos = np.asarray(positions, dtype=np.float64)
     n = len(pos)
     radii = np.broadcast_to(np.asarray(radii, dtype=np.float64), (n,))
+    prm = law_params(law, params)
+    dt_c = critical_time_step(law, prm, radii, density)
+    if not 0.0 < dt <= dt_c:
+        raise ValueError(f"dt = {dt:.6g} s: expected a value in (0, {dt_c:.6g}] s, the critical time "
+                         f"step of the {law} contacts of these spheres (take 0.1-0.3 of it)")
     gids = np.arange(n, dtype=np.int64)
     cell = PeriodicCell(box_lo, box_length, periodic, rate, servo)
     reach = 2.0 * float(radii.max()) + float(skin)
     constants = {"density": float(density), "law": law, "params": dict(params), "dt": float(dt),
                  "skin": float(skin), "reach": reach, "slab_axis": int(slab_axis),
                  "viscous_damping": float(viscous_damping), "n_elements": n,
-                 "balance_every": int(balance_every)}
-    contacts = Contacts(LAWS[law], law_params(law, params), skin, cell, reach=reach)
+                 "balance_every": int(balance_every), "dt_critical": dt_c}
+    contacts = Contacts(LAWS[law], prm, skin, cell, reach=reach)
     domain = None
     if comm.size > 1:
         stripe = slice(comm.rank, None, comm.size)

@@ -90,3 +90,55 @@ class Reducer:
             "H": H,
             "eps": strain_tensor(H),
         }
+
+
+@njit(cache=True, error_model="numpy")
+def overlap_volume(x, radius, pi, pj, shift, periodic, n_owned):
+    """Volume [m^3] of the lenses shared by overlapping pairs whose ``i`` is owned (counted once).
+
+    Lens of spheres R1, R2 at centre distance d < R1 + R2:
+    ``pi (R1 + R2 - d)^2 (d^2 + 2 d (R1 + R2) - 3 (R1 - R2)^2) / (12 d)``.
+    """
+    v = 0.0
+    for p in range(pi.shape[0]):
+        i = pi[p]
+        if i >= n_owned:
+            continue
+        j = pj[p]
+        d2 = 0.0
+        for a in range(3):
+            da = x[j, a] - x[i, a]
+            if periodic:
+                da += shift[p, a]
+            d2 += da * da
+        r1 = radius[i]
+        r2 = radius[j]
+        s = r1 + r2
+        if d2 >= s * s:
+            continue
+        d = np.sqrt(d2)
+        h = s - d
+        v += np.pi * h * h * (d2 + 2.0 * d * s - 3.0 * (r1 - r2) ** 2) / (12.0 * d)
+    return v
+
+
+def granular_measures(sim):
+    """Global state of a granular ``Simulation`` in a periodic cell (collective). PHYSICS.md 11.
+
+    Returns a dict: ``stress`` [3, 3] [Pa], the Love-Weber stress of the contacts of the last force
+    evaluation, tension positive; ``pressure`` = -trace / 3 [Pa] (compression positive); ``Z`` =
+    2 N_c / N, the coordination number; ``solid_fraction``: sphere volumes minus the overlap
+    lenses, over the cell volume; ``n_contacts``, ``kinetic_energy`` [J], ``contact_energy`` [J].
+    """
+    e, c = sim.elements, sim.contacts
+    n = e.n_owned
+    spheres = float(np.sum(4.0 / 3.0 * np.pi * e.radius[:n] ** 3))
+    shift = c.shift if c.shift is not None else np.zeros((0, 3))
+    lens = overlap_volume(e.x, e.radius, c.i, c.j, shift, c.shift is not None, n)
+    kin = sim.kinetic_energy()
+    g = sim.comm.sum(np.concatenate([c.sums, [spheres, lens, n, sim.contact_energy]]))
+    stress = g[:9].reshape(3, 3) / sim.cell.volume
+    return {"stress": stress, "pressure": float(-np.trace(stress) / 3.0),
+            "Z": float(2.0 * g[9] / g[12]), "n_contacts": int(round(g[9])),
+            "solid_fraction": float((g[10] - g[11]) / sim.cell.volume),
+            "kinetic_energy": kin, "contact_energy": float(g[13])}

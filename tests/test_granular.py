@@ -15,6 +15,7 @@ from pardem import granular
 from pardem.contacts import pair_keys
 from pardem.parallel.communicator import Communicator
 from pardem.physics.hertz_mindlin import effective_moduli
+from pardem.simulation import InstabilityError
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 SCRIPT = os.path.join(os.path.dirname(__file__), "mpi", "granular_run.py")
@@ -200,3 +201,60 @@ def test_servo_compresses_a_gas_to_the_target_pressure():
     assert np.all(np.abs(sim.cell.rate) < 1.0)             # settled, static
     phi = np.sum(4.0 / 3.0 * np.pi * radii**3) / sim.cell.volume
     assert 0.60 < phi < 0.66, phi
+
+
+def test_coordination_and_solid_fraction_against_brute_force():
+    from pardem.reducer import granular_measures
+    pos, radii, L = dense_packing(n=5, spacing=1.97)
+    case = granular.build(Communicator(), pos, radii, 2500.0, "hertz_mindlin",
+                          {"young": 72e9, "poisson": 0.2, "friction": 0.0}, np.zeros(3), np.full(3, L),
+                          1e-9, 0.05 * R)
+    case.sim.run(0)
+    m = granular_measures(case.sim)
+    d = pos[None, :, :] - pos[:, None, :]
+    d -= L * np.round(d / L)
+    dist = np.sqrt((d**2).sum(-1))
+    r1, r2 = radii[:, None], radii[None, :]
+    touch = np.triu(dist < r1 + r2, 1)
+    assert m["n_contacts"] == touch.sum() > len(pos)
+    assert m["Z"] == pytest.approx(2.0 * touch.sum() / len(pos), rel=1e-14)
+    # lens volumes by numerical quadrature of the overlap (independent of the closed form)
+    lens = 0.0
+    for a, b in zip(*np.nonzero(touch)):
+        ra, rb, dd = radii[a], radii[b], dist[a, b]
+        zs = np.linspace(dd - rb, ra, 20001)                 # along the axis, inside both spheres
+        area = np.pi * np.minimum(ra**2 - zs**2, rb**2 - (dd - zs) ** 2)
+        lens += np.trapezoid(np.clip(area, 0.0, None), zs)
+    expect = (np.sum(4.0 / 3.0 * np.pi * radii**3) - lens) / L**3
+    assert m["solid_fraction"] == pytest.approx(expect, rel=1e-7)
+    assert m["pressure"] > 0.0
+
+
+def test_linear_contact_critical_step_is_the_stability_limit():
+    """``linear_contact_time_step`` is 2 / omega of a pair (omega^2 = kn / m*). A periodic chain of
+    6 pre-compressed spheres has omega_max^2 = 4 kn / m = 2 kn / m* (alternating mode), so its
+    Verlet limit is dt_c / sqrt(2): bounded at 0.97 of it, divergent at 1.03."""
+    from pardem.physics.timestep import linear_contact_time_step
+    kn = 1e6
+    mass = 2500.0 * 4.0 / 3.0 * np.pi * R**3
+    dt_c = linear_contact_time_step(mass, kn)
+    a = 1.99 * R
+    pos = np.array([[(k + 0.5) * a, 6 * R, 6 * R] for k in range(6)])
+    vel = np.zeros((6, 3))
+    vel[:, 0] = 1e-3 * np.array([1, -1, 0.5, -0.3, 0.2, -0.4])
+    grown = {}
+    for f in (0.97, 1.03):
+        case = granular.build(Communicator(), pos, R, 2500.0, "linear", {"kn": kn, "kt": kn, "friction": 0.0},
+                              np.zeros(3), np.array([6 * a, 12 * R, 12 * R]), 0.5 * dt_c, 0.2 * R,
+                              velocities=vel)
+        case.sim.dt = f * dt_c / np.sqrt(2.0)    # past the refusal, to see what it protects from
+        try:
+            case.sim.run(2000)
+            grown[f] = np.abs(case.sim.elements.v[:, 0]).max()
+        except InstabilityError:
+            grown[f] = np.inf
+    assert grown[0.97] < 1e-2
+    assert grown[1.03] == np.inf            # diverged and stopped
+    with pytest.raises(ValueError, match="dt = .* expected a value in"):
+        granular.build(Communicator(), pos, R, 2500.0, "linear", {"kn": kn, "kt": kn}, np.zeros(3),
+                       np.array([6 * a, 12 * R, 12 * R]), 1.01 * dt_c, 0.2 * R)

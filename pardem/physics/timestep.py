@@ -61,3 +61,23 @@ def max_tau(bonds):
     if bonds.n == 0:
         return 0.0
     return float(max(bonds.tau_a.max(), bonds.tau_b.max(), bonds.tau_t.max()))
+
+
+def rayleigh_time_step(radius, density, shear_modulus, poisson):
+    """Rayleigh-wave time step of Hertz contacts [s]: ``pi R sqrt(rho / G) / (0.1631 nu + 0.8766)``
+    with the smallest radius ``R`` [m] (the time a Rayleigh wave takes to cross a sphere).
+
+    Hertz stiffness grows with overlap, so there is no fixed ``sqrt(m/k)``; this is the usual bound
+    of granular codes (Li, Xu, Thornton 2005), independent of impact speed. Runs take a fraction of
+    it (0.1-0.3).
+    """
+    return float(np.pi * radius * np.sqrt(density / shear_modulus) / (0.1631 * poisson + 0.8766))
+
+
+def linear_contact_time_step(mass, kn, zeta=0.0):
+    """Stability limit of Verlet for a linear spring-dashpot contact [s]: the pair's relative motion
+    is an oscillator of frequency ``omega = sqrt(kn / m*)`` with the smallest ``m* = m / 2`` [kg]
+    (two spheres of the smallest mass), damping ratio ``zeta``: ``dt < (2/omega)(sqrt(1 + zeta^2) -
+    zeta)``. A sphere with several contacts at once needs a fraction of it (0.1-0.3)."""
+    omega = np.sqrt(kn / (0.5 * mass))
+    return float(2.0 / omega * (np.sqrt(1.0 + zeta * zeta) - zeta))
