@@ -259,9 +259,9 @@ def hertz_mindlin_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, h
     return True, 0.4 * fn_el * delta + 0.5 * (h0 * h0 + h1 * h1 + h2 * h2) / kt
 
 
-def _pair_loop(damped, periodic):
-    """Loop over a pair list; ``damped`` and ``periodic`` are frozen as compile-time constants
-    (``periodic``: image shifts and the strain rate of the cell are read)."""
+def _pair_loop(damped, periodic, deforming):
+    """Loop over a pair list; ``damped``, ``periodic`` (image shifts are read) and ``deforming``
+    (the cell's strain rate is read) are frozen as compile-time constants."""
     @njit(cache=True, error_model="numpy")
     def loop(pi, pj, shift, rate, x, v, w, radius, mass, f, t, hist, dt, e_star, g_star, mu, gamma,
              n_owned, acc):
@@ -269,7 +269,7 @@ def _pair_loop(damped, periodic):
         energy = 0.0
         s0 = s1 = s2 = 0.0
         g0 = g1 = g2 = 0.0
-        if periodic:
+        if deforming:
             g0, g1, g2 = rate[0], rate[1], rate[2]
         for p in range(pi.shape[0]):
             i = pi[p]
@@ -280,7 +280,7 @@ def _pair_loop(damped, periodic):
                 s2 = shift[p, 2]
             touching, e = hertz_mindlin_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass,
                                              hist, dt, e_star, g_star, mu, gamma, out, damped,
-                                             periodic)
+                                             deforming)
             if touching:
                 scatter_pair(i, j, f, t, out)
                 if i < n_owned:   # counted once over the ranks (the owner of the lower gid)
@@ -312,7 +312,7 @@ def _all_pairs_loop(damped):
 
 
 @lru_cache(maxsize=None)
-def pair_loop(damped, periodic):
+def pair_loop(damped, periodic, deforming=False):
     """The compiled pair-list kernel for one sub-model choice (built once per choice).
 
     ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, e_star, g_star, mu, gamma,
@@ -320,9 +320,9 @@ def pair_loop(damped, periodic):
     updates ``history`` [n_pairs, 3], adds the Love-Weber sums of the pairs whose ``i`` is owned
     to ``acc`` [10] (``contact_frame.accumulate_pair``) and returns their elastic energy [J].
     ``shift`` [n_pairs, 3] [m] and the cell's diagonal strain rate ``rate`` [3] [1/s] are read
-    only when ``periodic``.
+    only when ``periodic`` and ``deforming`` respectively.
     """
-    return _pair_loop(bool(damped), bool(periodic))
+    return _pair_loop(bool(damped), bool(periodic), bool(deforming))
 
 
 @lru_cache(maxsize=None)
@@ -351,8 +351,7 @@ def compute(params, elements, i, j, history, dt, shift=None, rate=None, acc=None
     """
     check_pairs(i, j, history, shift)
     e, p = elements, params
-    periodic = shift is not None
-    loop = pair_loop(p.damped, periodic)
+    loop = pair_loop(p.damped, shift is not None, rate is not None and bool(np.any(rate != 0.0)))
     return loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
                 e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history, float(dt), p.e_star, p.g_star,
                 p.friction, p.gamma, e.n_owned, np.zeros(10) if acc is None else acc)

@@ -182,9 +182,9 @@ def linear_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, hist, dt
     return True, energy
 
 
-def _pair_loop(damped, periodic):
-    """Loop over a pair list; ``damped`` and ``periodic`` are frozen as compile-time constants
-    (``periodic``: image shifts and the strain rate of the cell are read)."""
+def _pair_loop(damped, periodic, deforming):
+    """Loop over a pair list; ``damped``, ``periodic`` (image shifts are read) and ``deforming``
+    (the cell's strain rate is read) are frozen as compile-time constants."""
     @njit(cache=True, error_model="numpy")
     def loop(pi, pj, shift, rate, x, v, w, radius, mass, f, t, hist, dt, kn, kt, mu, zeta_n, zeta_t,
              n_owned, acc):
@@ -192,7 +192,7 @@ def _pair_loop(damped, periodic):
         energy = 0.0
         s0 = s1 = s2 = 0.0
         g0 = g1 = g2 = 0.0
-        if periodic:
+        if deforming:
             g0, g1, g2 = rate[0], rate[1], rate[2]
         for p in range(pi.shape[0]):
             i = pi[p]
@@ -202,7 +202,7 @@ def _pair_loop(damped, periodic):
                 s1 = shift[p, 1]
                 s2 = shift[p, 2]
             touching, e = linear_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, hist,
-                                      dt, kn, kt, mu, zeta_n, zeta_t, out, damped, periodic)
+                                      dt, kn, kt, mu, zeta_n, zeta_t, out, damped, deforming)
             if touching:
                 scatter_pair(i, j, f, t, out)
                 if i < n_owned:   # counted once over the ranks (the owner of the lower gid)
@@ -234,13 +234,13 @@ def _all_pairs_loop(damped):
 
 
 @lru_cache(maxsize=None)
-def pair_loop(damped, periodic):
+def pair_loop(damped, periodic, deforming=False):
     """The compiled pair-list kernel for one sub-model choice (built once per choice).
 
     ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, kn, kt, mu, zeta_n, zeta_t,
     n_owned, acc)``: same contract as ``hertz_mindlin.pair_loop``.
     """
-    return _pair_loop(bool(damped), bool(periodic))
+    return _pair_loop(bool(damped), bool(periodic), bool(deforming))
 
 
 @lru_cache(maxsize=None)
@@ -262,7 +262,7 @@ def compute(params, elements, i, j, history, dt, shift=None, rate=None, acc=None
     """
     check_pairs(i, j, history, shift)
     e, p = elements, params
-    loop = pair_loop(p.damped, shift is not None)
+    loop = pair_loop(p.damped, shift is not None, rate is not None and bool(np.any(rate != 0.0)))
     return loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
                 e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history, float(dt), p.kn, p.kt,
                 p.friction, p.zeta_n, p.zeta_t, e.n_owned, np.zeros(10) if acc is None else acc)
