@@ -258,3 +258,30 @@ def test_linear_contact_critical_step_is_the_stability_limit():
     with pytest.raises(ValueError, match="dt = .* expected a value in"):
         granular.build(Communicator(), pos, R, 2500.0, "linear", {"kn": kn, "kt": kn}, np.zeros(3),
                        np.array([6 * a, 12 * R, 12 * R]), 1.01 * dt_c, 0.2 * R)
+
+
+def test_bonded_pairs_feel_no_contact():
+    """Three overlapping spheres, 0-1 bonded: the list holds 0-2 and 1-2 only, and the contact
+    forces equal those of the brute-force sum over the unbonded overlapping pairs."""
+    from pardem.bonding import BeamMaterial, make_bonds
+    from pardem.contacts import Contacts
+    from pardem.physics import hertz_mindlin
+    from pardem.state import Elements
+    pos = np.array([[0.0, 0.0, 0.0], [1.9 * R, 0.0, 0.0], [0.95 * R, 1.7 * R, 0.0]])
+    e = Elements.from_spheres(pos, R, 2500.0)
+    bonds = make_bonds(e, [[0, 1]], BeamMaterial(young=1e9, radius_ratio=0.5, poisson=0.3, damping=0.0),
+                       np.eye(3))
+    bonds.relink(e.gid)
+    params = hertz_mindlin.Params(young=72e9, poisson=0.2, friction=0.0)
+    c = Contacts(hertz_mindlin, params, 0.1 * R)
+    c.rebuild(e, bonds)
+    assert sorted(map(tuple, np.stack([c.i, c.j], 1).tolist())) == [(0, 2), (1, 2)]
+    c.compute(e, 1e-9)
+    ref = Elements.from_spheres(pos, R, 2500.0)
+    for a, b in ((0, 2), (1, 2)):
+        hertz_mindlin.compute(params, ref, np.array([a], np.int32), np.array([b], np.int32),
+                              np.zeros((1, 3)), 1e-9)
+    np.testing.assert_allclose(e.f, ref.f, rtol=1e-14)
+    c2 = Contacts(hertz_mindlin, params, 0.1 * R)
+    c2.rebuild(e)                      # without the bond the pair 0-1 is a contact
+    assert len(c2.i) == 3
