@@ -12,8 +12,8 @@ import time as _time
 
 import numpy as np
 
+from pardem.physics import walls
 from pardem.physics.beam import compute_bonds
-from pardem.physics.plates import plate_forces
 from pardem.physics.viscous_damping import damp_elements
 from pardem.physics.verlet import kick, kick_drift, kinetic_energy
 
@@ -84,8 +84,11 @@ class Simulation:
         if self.bonds is not None and self.bonds.n:
             self.bond_energy = compute_bonds(self.bonds, e)
         if p is not None:
-            self.plate_energy = plate_forces(e.x, e.radius, e.f, e.n_owned, p.axis, p.positions,
-                                             p.sides, p.stiffness, p.force_local)
+            # walls move at the velocity of the half step, the instant of the element velocities
+            normals, offsets, velocities = p.planes(self.time + 0.5 * self.dt)
+            self.plate_energy = walls.compute(p.law, e, normals, offsets, velocities, e.wall_h,
+                                              self.dt, p.wall_force)
+            p.force_local[:] = -np.einsum("wd,wd->w", p.wall_force[:2], normals[:2])
         if self.contacts is not None:
             self.contact_energy = self.contacts.compute(e, self.dt)
         if self.viscous_damping > 0.0:

@@ -18,7 +18,7 @@ from pardem.physics.quaternion import quat_to_matrix_into
 
 # Per-element arrays that travel with an element when it migrates (f, t and rot are recomputed).
 ELEMENT_FIELDS = ("x", "v", "w", "q", "radius", "mass", "inertia", "inv_mass", "inv_inertia",
-                  "x0", "gid", "flags")
+                  "x0", "gid", "flags", "wall_h")
 # Per-bond arrays that travel with a bond (i, j are rebuilt from the end gids).
 BOND_FIELDS = ("gid", "gid_i", "gid_j", "L0", "ka", "kb", "kt", "tau_a", "tau_b", "tau_t",
                "u1", "p1", "u2", "p2", "young", "radius")
@@ -36,6 +36,8 @@ class Elements:
     f, t : force [N] and torque about the centre [N m] accumulated in the current step
     radius [m], mass [kg], inertia [kg m^2] (2/5 m R^2), inv_mass, inv_inertia
     x0 : reference position of the strain fit [m]; gid : global id; flags : FLAG_* bits
+    wall_h : [n, n_walls, 3] tangential force of each frictional wall on the element [N]
+        (``pardem.physics.walls``); [n, 0, 3] without wall friction
     """
     x: np.ndarray
     v: np.ndarray
@@ -52,6 +54,7 @@ class Elements:
     x0: np.ndarray
     gid: np.ndarray
     flags: np.ndarray
+    wall_h: np.ndarray = None
     n_owned: int = 0
 
     @property
@@ -76,7 +79,7 @@ class Elements:
                    f=np.zeros((n, 3)), t=np.zeros((n, 3)), radius=radius, mass=mass,
                    inertia=inertia, inv_mass=1.0 / mass, inv_inertia=1.0 / inertia,
                    x0=x.copy(), gid=np.asarray(gids, dtype=np.int64).copy(),
-                   flags=np.zeros(n, dtype=np.uint8), n_owned=n)
+                   flags=np.zeros(n, dtype=np.uint8), wall_h=np.zeros((n, 0, 3)), n_owned=n)
 
     def pack(self, rows):
         """Copies of the migrating fields of ``rows`` (a dict of arrays)."""
@@ -86,8 +89,10 @@ class Elements:
     def unpack(cls, parts, n_owned, copy=True):
         """Elements from a list of ``pack`` dicts; the first ``n_owned`` rows are owned.
 
-        ``copy=False`` adopts the arrays of a single part (they must not be used elsewhere).
+        ``copy=False`` adopts the arrays of a single part (they must not be used elsewhere). A
+        part without ``wall_h`` (a checkpoint of a run without wall friction) gets [n, 0, 3].
         """
+        parts = [p if "wall_h" in p else {**p, "wall_h": np.zeros((len(p["gid"]), 0, 3))} for p in parts]
         data = _join(parts, ELEMENT_FIELDS, copy)
         n = data["x"].shape[0]
         e = cls(f=np.zeros((n, 3)), t=np.zeros((n, 3)), rot=np.empty((n, 3, 3)), n_owned=n_owned, **data)
@@ -210,13 +215,17 @@ def _refresh_rot(q, rot, start, stop):
 
 @dataclass
 class Plates:
-    """Rigid plates normal to ``axis``: row 0 fixed at the low end, row 1 moving at the high end.
+    """Rigid plates normal to ``axis`` (row 0 fixed at the low end, row 1 moving at the high end),
+    and optional fixed lateral walls.
 
-    positions [m] along the axis, sides = inward normal signs (+1, -1), stiffness [N/m] of the
-    element-plate repulsion; force_local = this rank's share of the force on each plate from the
-    last step [N], positive in compression. The moving plate's speed rises from 0 to ``speed``
-    [m/s] along a half cosine over ``ramp_time`` [s] (no velocity jump, so no stress wave is
-    launched), then stays constant; its position is a closed-form function of time.
+    positions [m] along the axis, sides = inward normal signs (+1, -1); stiffness [N/m] of a linear
+    element-plate law (kept for the critical time step); force_local = this rank's share of the force
+    on each plate from the last step [N], positive in compression. The moving plate's speed rises from
+    0 to ``speed`` [m/s] along a half cosine over ``ramp_time`` [s] (no velocity jump, so no stress
+    wave is launched), then stays constant; its position is a closed-form function of time.
+    law : ``pardem.physics.walls.Params`` of the element-wall contact (all walls); default: linear,
+    frictionless, ``stiffness``. lateral : [k, 3] rows (axis, position [m], inward side) of fixed
+    lateral walls (none by default). wall_force : [2 + k, 3] this rank's force on every wall [N].
     """
     axis: int
     positions: np.ndarray
@@ -226,14 +235,41 @@ class Plates:
     force_local: np.ndarray
     speed: float = 0.0
     ramp_time: float = 0.0
+    law: object = None
+    lateral: np.ndarray = None
+    wall_force: np.ndarray = None
 
     @classmethod
-    def pair(cls, axis, low, high, speed, stiffness, ramp_time=0.0):
+    def pair(cls, axis, low, high, speed, stiffness, ramp_time=0.0, law=None, lateral=()):
         """A fixed plate at ``low`` and one at ``high`` moving towards it at ``speed`` [m/s]."""
+        from pardem.physics import walls
         pos = np.array([low, high], dtype=np.float64)
+        if law is None:
+            law = walls.Params(law="linear", kn=float(stiffness))
+        lateral = np.asarray(lateral, dtype=np.float64).reshape(-1, 3)
         return cls(axis=int(axis), positions=pos, sides=np.array([1.0, -1.0]),
                    stiffness=np.full(2, float(stiffness)), initial=pos.copy(),
-                   force_local=np.zeros(2), speed=float(speed), ramp_time=float(ramp_time))
+                   force_local=np.zeros(2), speed=float(speed), ramp_time=float(ramp_time),
+                   law=law, lateral=lateral, wall_force=np.zeros((2 + len(lateral), 3)))
+
+    @property
+    def n_walls(self) -> int:
+        return 2 + len(self.lateral)
+
+    def planes(self, time):
+        """``(normals [n, 3], offsets [n], velocities [n, 3])`` of every wall at ``time`` [s]
+        (plates first), in the form of ``pardem.physics.walls``."""
+        n = self.n_walls
+        normals = np.zeros((n, 3))
+        offsets = np.empty(n)
+        velocities = np.zeros((n, 3))
+        normals[:2, self.axis] = self.sides
+        offsets[:2] = self.sides * self.positions
+        velocities[:2, self.axis] = self.velocities(time)
+        for k, (ax, pos, side) in enumerate(self.lateral):
+            normals[2 + k, int(ax)] = side
+            offsets[2 + k] = side * pos
+        return normals, offsets, velocities
 
     def travel(self, time):
         """Distance [m] the moving plate has covered at ``time`` [s]."""

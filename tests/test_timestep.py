@@ -17,7 +17,7 @@ import pytest
 
 from pardem.bonding import BeamMaterial, make_bonds
 from pardem.domains.ordered import ordered_lattice
-from pardem.physics.plates import plate_forces
+from pardem.physics import walls
 from pardem.physics.timestep import critical_time_step, eigen_bound, max_tau
 from pardem.simulation import InstabilityError, Simulation
 from pardem.state import Elements, Plates
@@ -52,8 +52,8 @@ def touching_plates(e, b):
 def generalised_forces(e, b, plates):
     f, t, _ = loads(b, e)
     if plates is not None:
-        plate_forces(e.x, e.radius, e.f, e.n_owned, plates.axis, plates.positions, plates.sides,
-                     plates.stiffness, plates.force_local)
+        normals, offsets, velocities = plates.planes(0.0)
+        walls.compute(plates.law, e, normals, offsets, velocities, e.wall_h, 1e-9, plates.wall_force)
         f = e.f.copy()
     return np.concatenate([f, t], axis=1).ravel()
 
