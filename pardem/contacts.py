@@ -48,7 +48,7 @@ class Contacts:
     a deforming cell, so it must be the same on every rank). After ``rebuild``: ``i, j`` int32
     rows, ``shifts`` int8 [n, 3] image of j, ``keys`` int64, ``history`` [n, 3] [N].
     After ``compute``: ``energy`` [J] and ``sums`` [10] (Love-Weber sums and contact count, this
-    rank's share; see ``contact_frame.accumulate_pair``).
+    rank's share; see ``contact_frame.add_love_weber``).
     """
 
     WIDTH = 3

@@ -73,17 +73,22 @@ def affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1, n2, g0, g1, g2):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def accumulate_pair(acc, d0, d1, d2, out):
-    """Love-Weber sums of one pair: ``acc[3 a + b] += d_a F_i,b`` and ``acc[9] += 1`` (contacts).
+def add_love_weber(acc, a00, a01, a02, a10, a11, a12, a20, a21, a22, count):
+    """Add one loop's Love-Weber sums ``a_ab = sum d_a F_i,b`` and its contact count to ``acc`` [10].
 
-    ``d`` [m] is the branch vector i -> j and ``F_i = out[0:3]`` the force on i, so a repulsive
-    contact adds a negative diagonal: the stress ``acc[:9] / V`` is positive in tension.
+    ``d`` [m] is the branch vector i -> j and ``F_i`` the force on i, so a repulsive contact adds a
+    negative diagonal: the stress ``acc[:9] / V`` is positive in tension; ``acc[9]`` counts contacts.
     """
-    for b in range(3):
-        acc[b] += d0 * out[b]
-        acc[3 + b] += d1 * out[b]
-        acc[6 + b] += d2 * out[b]
-    acc[9] += 1.0
+    acc[0] += a00
+    acc[1] += a01
+    acc[2] += a02
+    acc[3] += a10
+    acc[4] += a11
+    acc[5] += a12
+    acc[6] += a20
+    acc[7] += a21
+    acc[8] += a22
+    acc[9] += count
 
 
 @njit(cache=True, inline="always", error_model="numpy")

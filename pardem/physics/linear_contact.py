@@ -47,7 +47,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, accumulate_pair, affine_motion,
+from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, add_love_weber, affine_motion,
                                           check_pairs, clear_history, coulomb_cap, relative_motion,
                                           scatter_pair, update_history, write_pair)
 
@@ -192,6 +192,10 @@ def _pair_loop(damped, periodic, deforming):
         energy = 0.0
         s0 = s1 = s2 = 0.0
         g0 = g1 = g2 = 0.0
+        # Love-Weber sums in registers (an array accumulator would be stored every pair, since
+        # the compiler cannot prove it does not alias f and t)
+        a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
+        count = 0
         if deforming:
             g0, g1, g2 = rate[0], rate[1], rate[2]
         for p in range(pi.shape[0]):
@@ -207,8 +211,20 @@ def _pair_loop(damped, periodic, deforming):
                 scatter_pair(i, j, f, t, out)
                 if i < n_owned:   # counted once over the ranks (the owner of the lower gid)
                     energy += e
-                    accumulate_pair(acc, (x[j, 0] - x[i, 0]) + s0, (x[j, 1] - x[i, 1]) + s1,
-                                    (x[j, 2] - x[i, 2]) + s2, out)
+                    b0 = (x[j, 0] - x[i, 0]) + s0
+                    b1 = (x[j, 1] - x[i, 1]) + s1
+                    b2 = (x[j, 2] - x[i, 2]) + s2
+                    a00 += b0 * out[0]
+                    a01 += b0 * out[1]
+                    a02 += b0 * out[2]
+                    a10 += b1 * out[0]
+                    a11 += b1 * out[1]
+                    a12 += b1 * out[2]
+                    a20 += b2 * out[0]
+                    a21 += b2 * out[1]
+                    a22 += b2 * out[2]
+                    count += 1
+        add_love_weber(acc, a00, a01, a02, a10, a11, a12, a20, a21, a22, count)
         return energy
     return loop
 
