@@ -13,9 +13,11 @@ from pardem.bonding import BeamMaterial, make_bonds
 from pardem.config import DeckError, physics_differences
 from pardem.io import checkpoint
 from pardem.io.checkpoint import BOND_DATASETS, ELEMENT_DATASETS
+from pardem.domains import compact
 from pardem.domains.ordered import ordered_lattice
 from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs, choose_axis
+from pardem.physics.anisotropy import lrt_frame
 from pardem.physics.timestep import critical_time_step, eigen_bound, max_tau
 from pardem.reducer import Reducer, young_and_poisson
 from pardem.simulation import Simulation
@@ -57,18 +59,35 @@ class CompressionCase:
 GHOST_STRETCH = 1.25   # bonds may stretch by 25 % before they would outgrow the ghost layer
 
 
-def build_case(comm, deck, steps=None):
+def build_case(comm, deck, steps=None, packing=None):
     """Elements, bonds, plates and time step of the deck's compression test on this rank.
 
     Every rank computes the lattice geometry (cheap), keeps its slab's elements and the bonds that
-    touch them, then the slab layer builds the ghosts. DeckError on a bad time step or split.
+    touch them, then the slab layer builds the ghosts. A compact packing is built on rank 0 and
+    broadcast, unless ``packing`` (a ``CompactPacking`` of this deck's domain, e.g. shared by the
+    cases of one realisation) is given. DeckError on a bad time step, split or domain.
     """
     dom, bd, ld, run, par = deck["domain"], deck["bonds"], deck["loading"], deck["run"], deck["parallel"]
-    R = dom["radius"]
-    try:
-        pos, pairs, frame = ordered_lattice(dom["box"], R, dom["tilt_deg"])
-    except ValueError as err:
-        raise DeckError(f"domain.box = {list(dom['box'])} with domain.radius = {R}: {err}") from None
+    axis = "xyz".index(ld["axis"])
+    if dom["kind"] == "compact":
+        pos, radii, pairs, frame, facts = _compact_domain(comm, dom, axis, packing)
+        R = facts["mean_radius"]
+        lower = np.min(pos - radii[:, None], axis=0)
+        upper = np.max(pos + radii[:, None], axis=0)
+        # the box is the domain the elements represent (across the load, a periodic cell: each
+        # sphere counted once); spheres sticking out of its cut faces would inflate it by ~2R/L
+        extent = np.array(dom["box"], dtype=np.float64)
+    else:
+        R = dom["radius"]
+        try:
+            pos, pairs, frame = ordered_lattice(dom["box"], R, dom["tilt_deg"])
+        except ValueError as err:
+            raise DeckError(f"domain.box = {list(dom['box'])} with domain.radius = {R}: {err}") from None
+        radii = np.full(len(pos), R)
+        facts = {}
+        lower = pos.min(axis=0) - R
+        upper = pos.max(axis=0) + R
+        extent = np.ptp(pos, axis=0) + 2 * R
     if len(pos) < 8:
         raise DeckError(f"domain.box = {list(dom['box'])} holds only {len(pos)} elements of radius "
                         f"{R}: expected a box at least 2 diameters wide along each axis")
@@ -77,11 +96,9 @@ def build_case(comm, deck, steps=None):
     pairs = np.sort(pairs, axis=1)
     pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
     bond_gids = np.arange(len(pairs), dtype=np.int64)
-    axis = "xyz".index(ld["axis"])
-    low = float(np.min(pos[:, axis]) - R)
-    high = float(np.max(pos[:, axis]) + R)
-    extent = np.ptp(pos, axis=0) + 2 * R
-    near_plate = np.minimum(pos[:, axis] - R - low, high - pos[:, axis] - R) < NEAR_PLATE_GAP * R
+    low = float(lower[axis])
+    high = float(upper[axis])
+    near_plate = np.minimum(pos[:, axis] - radii - low, high - pos[:, axis] - radii) < NEAR_PLATE_GAP * R
     fit = pos[~near_plate]
     if len(fit) < 4 or np.linalg.matrix_rank(np.cov(fit.T) if len(fit) > 1 else np.zeros((3, 3))) < 3:
         raise DeckError(f"domain.box = {list(dom['box'])}: the elements away from the plates do not fill "
@@ -103,7 +120,7 @@ def build_case(comm, deck, steps=None):
     rows = np.concatenate([np.nonzero(owned)[0], partners])
     local_row = np.full(n_global, -1, dtype=np.int64)
     local_row[rows] = np.arange(len(rows))
-    elements = Elements.from_spheres(pos[rows], R, dom["density"], gids[rows])
+    elements = Elements.from_spheres(pos[rows], radii[rows], dom["density"], gids[rows])
     elements.n_owned = int(owned.sum())
     elements.flags[near_plate[rows]] |= FLAG_NEAR_PLATE
     material = BeamMaterial(young=bd["young"], radius_ratio=bd["radius_ratio"],
@@ -140,11 +157,55 @@ def build_case(comm, deck, steps=None):
         "dt": dt, "dt_critical": dt_c, "plate_stiffness": k_plate, "ramp_time": ramp,
         "plate_low": low, "plate_high": high, "axis": axis, "length": length,
         "cross_section": float(extent[others[0]] * extent[others[1]]), "transit_time": transit,
-        "analytic_young": _analytic_young(bd, frame, axis), "n_elements": n_global,
+        "analytic_young": _analytic_young(bd, frame, axis) if dom["kind"] == "ordered" else float("nan"),
+        "n_elements": n_global,
         "n_bonds": len(pairs), "origin": 0.5 * (pos.min(axis=0) + pos.max(axis=0)),
         "slab_axis": slab_axis, "ghost_range": ghost_range, "skin": skin, "damped": bonds.damped,
+        **facts,
     }
     return _assemble(comm, deck, elements, bonds, domain, constants, steps)
+
+
+def _compact_domain(comm, dom, axis, packing=None):
+    """Centres, radii, bonded pairs, LRT frame and facts (solid fraction, ...) of a compact domain
+    whose faces normal to the loading ``axis`` are flat.
+
+    The packing is built on rank 0 only and broadcast: every rank then holds bitwise the same
+    packing whatever the machine, and a failure reaches every rank (as a DeckError).
+    """
+    box, R = dom["box"], dom["radius"]
+    where = f"domain.box = {list(box)} with domain.radius = {R}"
+    if min(box) < compact.MIN_EDGE * R:
+        raise DeckError(f"{where}: a compact packing needs every box edge at least "
+                        f"{compact.MIN_EDGE:g} radii ({compact.MIN_EDGE * R:.6g} m)")
+    args = (box, R, dom["dispersity"], dom["seed"], axis)
+    if packing is None:
+        result = None
+        if comm.is_root:
+            try:
+                result = compact.compact_packing(*args)
+            except ValueError as err:
+                result = str(err)
+        packing = comm.bcast(result)
+        if isinstance(packing, str):
+            raise DeckError(f"{where} (compact, seed {dom['seed']}, dispersity {dom['dispersity']}): "
+                            f"{packing}; expected an edge along the loading axis of at least "
+                            f"{compact.RELIABLE_EDGE:g} radii (the flat faces under the plates lower the "
+                            f"solid fraction of short boxes)")
+    elif not packing.matches(*args):
+        raise ValueError(f"the packing given (box {list(packing.box)}, radius {packing.radius}, dispersity "
+                         f"{packing.dispersity}, seed {packing.seed}, flat axis {packing.flat_axis}) is not "
+                         f"the deck's domain and loading axis")
+    try:
+        pos, radii, pairs = compact.compact_domain(packing, dom["bond_gap"] * packing.mean_radius)
+    except ValueError as err:
+        raise DeckError(f"domain.bond_gap = {dom['bond_gap']}: {err}; expected a larger gap "
+                        f"(at most 0.5)") from None
+    facts = {"solid_fraction": float(4.0 / 3.0 * np.pi * np.sum(radii**3) / np.prod(box)),
+             "packing_fraction": packing.solid_fraction, "mean_radius": float(np.mean(radii)),
+             "max_overlap": packing.max_overlap, "removed_elements": packing.n - len(radii),
+             "coordination": 2.0 * len(pairs) / len(radii)}
+    return pos, radii, pairs, lrt_frame(dom["tilt_deg"]), facts
 
 
 def _slab_comm(comm, slabs, ghost_range, skin, par):

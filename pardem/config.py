@@ -122,12 +122,25 @@ def boolean(name, v):
 # The compress driver's deck. Defaults are the default case (PHYSICS.md W study cube).
 COMPRESS_SCHEMA = {
     "domain": {
-        "kind": Field("ordered", choice("ordered"), "domain builder"),
+        "kind": Field("ordered", choice("ordered", "compact"),
+                      "domain builder: ordered (cubic lattice, face bonds) or compact (dense random "
+                      "packing, solid fraction >= 0.63, bonds within bond_gap)"),
         "box": Field([0.01, 0.01, 0.01], triple(positive()), "box edge lengths [m]"),
-        "radius": Field(0.2381e-3, positive(), "element radius [m]"),
-        "density": Field(1000.0, positive(), "element density [kg/m^3]"),
+        "radius": Field(0.2381e-3, positive(),
+                        "element radius [m]; compact: the requested mean radius (the packing ends "
+                        "within about 1 % of it)"),
+        "density": Field(1000.0, positive(),
+                         "element density rho_e [kg/m^3], used as given for both kinds; the represented "
+                         "continuum's density is rho_e times the solid fraction (pi/6 ordered, 0.63-0.64 "
+                         "compact), PHYSICS.md section 1"),
         "tilt_deg": Field(0.0, number(-90.0, 90.0, lo_open=False, hi_open=False),
-                          "tilt of the lattice and LRT frame about T (z) [deg]"),
+                          "tilt of the LRT frame about T (z) [deg]; ordered: the lattice turns with it"),
+        "seed": Field(0, number(lo=0, lo_open=False, integer=True),
+                      "compact: seed of the random packing (the same seed gives the same packing)"),
+        "dispersity": Field(0.1, number(0.0, 0.5, lo_open=False),
+                            "compact: radii uniform in radius * (1 - dispersity, 1 + dispersity)"),
+        "bond_gap": Field(0.01, number(0.0, 0.5, lo_open=False, hi_open=False),
+                          "compact: bond the pairs whose surface gap is below bond_gap * mean radius"),
     },
     "bonds": {
         "young": Field(100e6, number_or_triple(positive()), "bond Young's modulus, or [E_L, E_R, E_T] [Pa]"),
