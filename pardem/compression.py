@@ -17,6 +17,7 @@ from pardem.domains import compact
 from pardem.domains.ordered import ordered_lattice
 from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs, choose_axis
+from pardem.physics import walls
 from pardem.physics.anisotropy import lrt_frame
 from pardem.physics.timestep import critical_time_step, eigen_bound, max_tau
 from pardem.reducer import Reducer, young_and_poisson
@@ -56,6 +57,7 @@ class CompressionCase:
         return max(0, self.n_steps - self.sim.step_count)
 
 
+WALL_OVERLAP_BOUND = 0.05   # Hertz walls: the critical step holds up to this overlap / R
 GHOST_STRETCH = 1.25   # bonds may stretch by 25 % before they would outgrow the ghost layer
 
 
@@ -135,6 +137,18 @@ def build_case(comm, deck, steps=None, packing=None):
 
     k_plate = _global_mean_axial_stiffness(comm, bonds, elements) if deck["plates"]["stiffness"] == "auto" \
         else deck["plates"]["stiffness"]
+    wall_young = (comm.max(float(bonds.young.max()) if bonds.n else 0.0)
+                  if deck["plates"]["young"] == "auto" else deck["plates"]["young"])
+    law = _wall_law(deck["plates"], k_plate, wall_young)
+    others = [a for a in range(3) if a != axis]
+    lateral = []
+    if deck["plates"]["lateral_walls"]:
+        lateral = [[a, float(lower[a]), 1.0] for a in others] + [[a, float(upper[a]), -1.0] for a in others]
+    elements.wall_h = walls.new_history(law, elements.n_total, 2 + len(lateral))
+    if law.law == "hertz":
+        # Hertz stiffens with overlap: bound it at an overlap of WALL_OVERLAP_BOUND R (the run
+        # stops as unstable if an element ever goes deeper and the step no longer holds)
+        k_plate = max(walls.stiffness(law, float(radii.max()), WALL_OVERLAP_BOUND * float(radii.max())))
     lam = eigen_bound(bonds.i, bonds.j, bonds.L0, bonds.ka, bonds.kb, bonds.kt, elements.mass,
                       elements.inertia, elements.n_owned, k_plate / elements.mass)
     dt_c = critical_time_step(comm.max(lam), comm.max(max_tau(bonds)))
@@ -152,9 +166,9 @@ def build_case(comm, deck, steps=None, packing=None):
         # two periods of the slowest axial mode, but at most half of the travel (the moduli are
         # fitted over the constant-speed phase that follows)
         ramp = min(4.0 * transit, ld["strain"] * length / ld["plate_speed"])
-    others = [a for a in range(3) if a != axis]
     constants = {
         "dt": dt, "dt_critical": dt_c, "plate_stiffness": k_plate, "ramp_time": ramp,
+        "wall_young": wall_young, "lateral_walls": lateral,
         "plate_low": low, "plate_high": high, "axis": axis, "length": length,
         "cross_section": float(extent[others[0]] * extent[others[1]]), "transit_time": transit,
         "analytic_young": _analytic_young(bd, frame, axis) if dom["kind"] == "ordered" else float("nan"),
@@ -208,6 +222,16 @@ def _compact_domain(comm, dom, axis, packing=None):
     return pos, radii, pairs, lrt_frame(dom["tilt_deg"]), facts
 
 
+def _wall_law(plates, k_linear, young):
+    """``walls.Params`` of the deck's ``[plates]`` (linear stiffness ``k_linear`` [N/m] or Hertz
+    with the elements' ``young`` [Pa] against rigid walls)."""
+    common = {"friction": plates["friction"], "restitution": plates["restitution"]}
+    if plates["law"] == "hertz":
+        return walls.Params(law="hertz", young=young, poisson=plates["poisson"], wall_young=math.inf,
+                            **common)
+    return walls.Params(law="linear", kn=k_linear, kt=k_linear, **common)
+
+
 def _slab_comm(comm, slabs, ghost_range, skin, par):
     if comm.size == 1:
         return None
@@ -219,8 +243,9 @@ def _assemble(comm, deck, elements, bonds, domain, constants, steps, step=0, sam
     """The case from its state and constants; ``steps`` = total steps from the run's start."""
     c = constants
     ld = deck["loading"]
+    law = _wall_law(deck["plates"], c["plate_stiffness"], c["wall_young"])
     plates = Plates.pair(c["axis"], c["plate_low"], c["plate_high"], ld["plate_speed"],
-                         c["plate_stiffness"], c["ramp_time"])
+                         c["plate_stiffness"], c["ramp_time"], law=law, lateral=c["lateral_walls"])
     if steps is None:
         t_end = plates.time_to_travel(ld["strain"] * c["length"])
         steps = max(1, math.ceil(t_end / c["dt"] - 1e-9))
@@ -240,6 +265,8 @@ def checkpoint_payload(case):
     n = e.n_owned
     elements = {k: getattr(e, k)[:n] for k in ELEMENT_DATASETS if k != "x_build"}
     elements["x_build"] = sim.domain.x_build if sim.domain is not None else e.x[:n]
+    if e.wall_h.shape[1]:
+        elements["wall_h"] = e.wall_h[:n]
     once = b.counted_once(n)
     bonds = {k: getattr(b, k)[once] for k in BOND_DATASETS}
     series = samples_to_columns(case.samples)
@@ -293,7 +320,7 @@ def restore_case(comm, deck, path, steps=None):
     par = deck["parallel"]
     slab_axis = c["slab_axis"] if par["slab_axis"] == "auto" else "xyz".index(par["slab_axis"])
     same = int(meta["n_ranks"]) == comm.size and slab_axis == int(meta["slab_axis"])
-    names = [k for k in ELEMENT_DATASETS]
+    names = list(ELEMENT_DATASETS) + (["wall_h"] if checkpoint.has_dataset(path, "elements/wall_h") else [])
     if same:
         counts = np.asarray(meta["owned_counts"], dtype=np.int64)
         off = int(counts[:comm.rank].sum())

@@ -151,8 +151,21 @@ COMPRESS_SCHEMA = {
         "damping": Field(0.2, number(0.0, 1.0, lo_open=False, hi_open=False), "bond damping ratio"),
     },
     "plates": {
+        "law": Field("linear", choice("linear", "hertz"),
+                     "element-wall normal law of the plates and lateral walls"),
         "stiffness": Field("auto", auto_or(positive()),
-                           "element-plate stiffness [N/m]; auto = mean axial bond stiffness"),
+                           "linear law: element-wall stiffness kn = kt [N/m]; auto = mean axial bond stiffness"),
+        "young": Field("auto", auto_or(positive()),
+                       "hertz law: Young's modulus of the elements against the rigid walls [Pa]; "
+                       "auto = the largest bond modulus"),
+        "poisson": Field(0.3, number(-1.0, 0.5), "hertz law: Poisson ratio of the elements"),
+        "friction": Field(0.0, number(lo=0.0, lo_open=False),
+                          "Coulomb friction coefficient of the walls; 0 = frictionless (no history)"),
+        "restitution": Field(1.0, number(0.0, 1.0, hi_open=False),
+                             "normal restitution coefficient of element-wall impacts; 1 = undamped"),
+        "lateral_walls": Field(False, boolean,
+                               "fixed walls on the four faces across the load (at the outer element "
+                               "surfaces): a laterally confined test"),
     },
     "loading": {
         "axis": Field("x", choice("x", "y", "z"), "loading axis"),
@@ -212,10 +225,17 @@ def physics_differences(old, new):
             continue
         for key, value in table.items():
             name = f"{section}.{key}"
+            if key not in old.get(section, {}) and _plain(value) == _plain(_default(section, key)):
+                continue   # a key added after the checkpoint was written, left at its default
             before = old.get(section, {}).get(key)
             if name not in RESTART_MAY_CHANGE and _plain(before) != _plain(value):
                 out.append((name, before, value))
     return out
+
+
+def _default(section, key):
+    f = COMPRESS_SCHEMA.get(section, {}).get(key)
+    return None if f is None else f.default
 
 
 def _plain(v):

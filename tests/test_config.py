@@ -36,6 +36,11 @@ BAD = [
     (["--set", "domain.box=[0.01, 0.01, 0.0015]", "--set", "loading.axis=z"], "domain.box",
      "at least 2 element layers"),
     (["--config", "/"], "--config /", "cannot be read"),
+    (["--set", "plates.friction=-0.1"], "plates.friction", "[0.0, inf)"),
+    (["--set", "plates.law=rubber"], "plates.law", "'linear', 'hertz'"),
+    (["--set", "plates.restitution=0"], "plates.restitution", "(0.0, 1.0]"),
+    (["--set", "plates.lateral_walls=1"], "plates.lateral_walls", "true or false"),
+    (["--set", "plates.poisson=0.6"], "plates.poisson", "(-1.0, 0.5)"),
 ]
 
 

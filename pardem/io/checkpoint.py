@@ -6,7 +6,8 @@ Layout (``LAYOUT_VERSION`` 1), readable with plain h5py::
                                  rows at the offset given by an exclusive scan of the counts)
         x, v, w [m, m/s, rad/s], q (w, x, y, z body -> world), f, t (forces and torques of the last
         step [N, N m]), radius [m], mass [kg], inertia [kg m^2], x0 (reference of the strain fit
-        [m]), x_build (positions at the last ghost rebuild [m]), gid, flags
+        [m]), x_build (positions at the last ghost rebuild [m]), gid, flags; wall_h [N, n_walls, 3]
+        (tangential force of each frictional wall on the element [N]; only with wall friction)
     /bonds/<name>      [B, ...]  each bond once (written by the owner of its lower-gid end)
         gid, gid_i, gid_j, L0 [m], ka [N/m], kb [N m^2], kt [N m/rad], tau_a, tau_b, tau_t [s],
         u1, p1, u2, p2 (body-frame bond axis and twist reference of each end), young [Pa], radius [m]
@@ -206,6 +207,12 @@ def inspect(path):
         attrs[k] = json.loads(attrs[k])
     attrs["series"] = series
     return attrs
+
+
+def has_dataset(path, name):
+    """True when the checkpoint holds dataset ``name`` (e.g. the optional ``elements/wall_h``)."""
+    with h5py.File(path, "r") as f:
+        return name in f
 
 
 def read_rows(path, group, names, select):
