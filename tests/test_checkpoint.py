@@ -168,9 +168,14 @@ def test_sigkill_during_a_write_leaves_the_previous_checkpoint(tmp_path, n):
     first, tmp = ck / "checkpoint-0000000400.h5", ck / "checkpoint-0000000800.h5.tmp"
     try:
         deadline = time.monotonic() + 120
-        while not tmp.exists() and time.monotonic() < deadline:   # the second write has started
+        # the second write has flushed its data and holds (PARDEM_CHECKPOINT_PAUSE) before the
+        # completion mark: its size has reached that of the first (killing it earlier, before
+        # the HDF5 header is on disk, would test a different refusal)
+        while time.monotonic() < deadline and not (
+                tmp.exists() and first.exists() and tmp.stat().st_size >= 0.95 * first.stat().st_size):
             assert proc.poll() is None
             time.sleep(0.1)
+        time.sleep(0.5)
         assert tmp.exists() and first.exists()
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
