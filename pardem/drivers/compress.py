@@ -142,6 +142,9 @@ def _run(comm, args, files):
             "ramp_time": sim.plates.ramp_time,
             "wave_transit_time": case.transit_time,
             "cross_section": case.cross_section,
+            "domain": {k: case.constants[k] for k in ("solid_fraction", "packing_fraction", "mean_radius",
+                                                      "coordination", "removed_elements", "max_overlap")
+                       if k in case.constants},
             **result,
             "young_modulus_analytic": case.analytic_young,
             "wall_seconds": time.perf_counter() - t_start,
@@ -159,6 +162,10 @@ def _run(comm, args, files):
         if np.isfinite(case.analytic_young):
             line += (f";  analytic pi/4 E r^2 = {case.analytic_young / 1e6:.3f} MPa "
                      f"({100 * (E / case.analytic_young - 1):+.2f} %)")
+        if summary["domain"]:
+            d = summary["domain"]
+            nus += (f"\ncompact domain: solid fraction {d['solid_fraction']:.4f}, coordination "
+                    f"{d['coordination']:.2f}, mean radius {d['mean_radius']:.4g} m")
         print(line + f"\n{nus}\nwrote {out}/summary.json, series.csv and series.h5 "
               f"in {summary['wall_seconds']:.1f} s ({summary['element_steps_per_second']:.3e} element-steps/s)",
               flush=True)

@@ -13,13 +13,15 @@ def _plain(obj):
     if isinstance(obj, np.ndarray):
         return _plain(obj.tolist())
     if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
+        obj = obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None      # strict JSON has no NaN: "not defined" (e.g. no analytic modulus)
     return obj
 
 
 def write_json(path, data):
     tmp = f"{path}.tmp"
     with open(tmp, "w") as fh:
-        json.dump(_plain(data), fh, indent=2, allow_nan=True)
+        json.dump(_plain(data), fh, indent=2, allow_nan=False)
         fh.write("\n")
     os.replace(tmp, path)
