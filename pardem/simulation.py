@@ -108,8 +108,7 @@ class Simulation:
     def step(self):
         t0 = _time.perf_counter()
         e = self.elements
-        kick_drift(e.x, e.v, e.w, e.q, e.rot, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned,
-                   self.bonds is not None and self.bonds.n > 0)
+        kick_drift(e.x, e.v, e.w, e.q, e.rot, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned)
         if self.cell is not None:
             self.cell.deform(e, self.dt, self._reference_positions())
         if self.plates is not None:

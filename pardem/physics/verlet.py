@@ -11,12 +11,8 @@ from pardem.physics.quaternion import quat_to_matrix_into, rotate_world
 
 
 @njit(cache=True, error_model="numpy")
-def kick_drift(x, v, w, q, rot, f, t, inv_mass, inv_inertia, dt, n_owned, refresh_rot=True):
-    """Half kick with the forces of the previous step, drift by ``dt``, then zero ``f`` and ``t``.
-
-    ``refresh_rot``: update the cached rotation matrices (only bonds read them; contact-only runs
-    skip it, a quarter of this kernel's time).
-    """
+def kick_drift(x, v, w, q, rot, f, t, inv_mass, inv_inertia, dt, n_owned):
+    """Half kick with the forces of the previous step, drift by ``dt``, then zero ``f`` and ``t``."""
     h = 0.5 * dt
     for k in range(n_owned):
         im = inv_mass[k] * h
@@ -28,8 +24,7 @@ def kick_drift(x, v, w, q, rot, f, t, inv_mass, inv_inertia, dt, n_owned, refres
             f[k, d] = 0.0
             t[k, d] = 0.0
         rotate_world(q[k], w[k], dt)
-        if refresh_rot:
-            quat_to_matrix_into(q[k], rot[k])
+        quat_to_matrix_into(q[k], rot[k])
     for k in range(n_owned, x.shape[0]):
         for d in range(3):
             f[k, d] = 0.0
