@@ -114,3 +114,12 @@ def test_bounded_and_isotropic(law):
     v = evaluate(law, u, F, VALS)
     assert np.all(v >= min(VALS) * (1 - 1e-14)) and np.all(v <= max(VALS) * (1 + 1e-14))
     np.testing.assert_allclose(evaluate(law, u, F, 5.0e8), 5.0e8, rtol=1e-13)
+
+
+@pytest.mark.parametrize("law", ["TOR", "hankinson", "linear", "spherical"])
+def test_scalar_value_is_isotropic_for_every_law(law):
+    """A scalar (isotropic) property is the same along every bond direction, whatever the law."""
+    from pardem.physics.anisotropy import evaluate, lrt_frame
+    u = np.random.default_rng(4).normal(size=(200, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    np.testing.assert_array_equal(evaluate(law, u, lrt_frame(17.0), 0.7), np.full(200, 0.7))

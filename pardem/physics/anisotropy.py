@@ -51,8 +51,12 @@ LAWS = {
 def evaluate(law, u, frame, values):
     """Value of an anisotropic property for bond directions ``u`` [n, 3].
 
-    values : scalar (isotropic) or (v_L, v_R, v_T).
+    values : scalar (isotropic: the same value in every direction, whatever the law; the spherical
+        law, which is not an interpolation, would otherwise scale it by up to sqrt(3)) or
+        (v_L, v_R, v_T).
     """
+    if np.ndim(values) == 0:
+        return np.full(len(u), float(values))
     vals = np.broadcast_to(np.asarray(values, dtype=np.float64), (3,))
     c, theta, phi = direction_angles(u, frame)
     return LAWS[law](c, theta, phi, vals[0], vals[1], vals[2])

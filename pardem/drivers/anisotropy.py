@@ -1,0 +1,262 @@
+"""Anisotropy study: domain anisotropy degrees against bond ratios, four laws, ordered and compact domains.
+
+    python -m pardem.drivers.anisotropy [--config deck.toml] [--set section.key=value ...]
+        [--kinds ordered,compact] [--laws TOR,hankinson,linear,spherical] [--ratios 1,5,10,15,20,25]
+        [--realisations 10] [--xi-step 10] [--offaxis-ratio Q] [--transits 4] [--quick] [--out DIR]
+    mpiexec -n 2 python -m pardem.drivers.anisotropy ...      (cases are spread over the ranks)
+
+Writes ``DIR/anisotropy.json``, ``DIR/anisotropy.png`` (with matplotlib) and prints the table; see
+``pardem.anisotropy_study`` for what is run and how. JSON layout: ``data[kind][law]`` = one row per
+bond ratio with ``bond_LR``, ``bond_LT`` (bond ratios), ``LR_mean``, ``LR_std``, ``LT_mean``, ``LT_std``
+(the domain's E_L^D/E_R^D and E_L^D/E_T^D over the realisations), ``E_{L,R,T}_{mean,std}`` [Pa],
+``n_realisations``, ``n_failed``; ``data["off_axis"][kind][law]`` = one row per tilt with ``xi_deg``,
+``E_mean``, ``E_std``, ``E_hankinson`` [Pa], ``n_failed``, ``statuses``; ``data["meta"]`` = the deck,
+the plan, ranks, wall time and every case's record (``cases``: moduli per realisation, status,
+diagnostics). A failed measurement is null in the rows and counted in ``n_failed``.
+
+The deck: ``drivers/anisotropy_study.toml`` is the built-in default (used when ``--config`` is not
+given; ``--set`` applies on top). Its ``bonds.young`` gives E_R and E_T; E_L = ratio * E_R.
+
+Runtime of the full default (4 laws x 6 ratios x 3 axes, off-axis 0..90 by 10 deg: 108 compressions
+per domain, 8 transits each), measured on the shared 2-core development machine: the ordered lattice
+(1,331 elements) about 2.5 min on one core (2.2 min on 2 ranks); one compact realisation (about 1,480
+elements, its 3 packings included) took about 17 min on one core before an isotropic bond radius
+stopped being scaled by the spherical law (it made those bonds up to 15 times stiffer in bending and
+the step shorter; 60 % of that time was the spherical law), so about 8 min now. The full default with
+10 realisations: estimated 50 min on 2 ranks. ``--quick`` (boxes of 18 radii, ratios 1 and 5, 2
+realisations, xi = 0, 45, 90) takes about 10 s for the ordered lattice and a few minutes for the
+compact domains; restrict it further (``--laws hankinson --ratios 1 --xi-step 0``: 10 s) for a smoke
+test.
+
+Exit codes: 0 done (failed measurements are flagged in the output, not errors), 1 unexpected error
+(all ranks stop), 2 bad input (one line naming the option or deck field and the allowed values).
+"""
+import argparse
+import datetime
+import os
+import sys
+import time
+from dataclasses import asdict
+
+import numpy as np
+
+import pardem
+from pardem import anisotropy_study as study
+from pardem.cli import EXIT_OK, fail_usage
+from pardem.compression import build_case
+from pardem.config import COMPRESS_SCHEMA, DeckError, describe, load_deck
+from pardem.io.summary import write_json
+from pardem.parallel.communicator import Communicator, report_and_abort
+
+
+class _Parser(argparse.ArgumentParser):
+    """Bad options end with one line and exit code 2 (rank 0 prints it)."""
+    comm = None
+
+    def error(self, message):
+        fail_usage(self.comm, f"{message} (see --help)")
+
+
+def parser(comm=None):
+    p = _Parser(prog="python -m pardem.drivers.anisotropy", description=__doc__.split("\n\n")[0],
+                formatter_class=argparse.RawDescriptionHelpFormatter,
+                epilog="deck keys and defaults of the compress deck (the study's own defaults are in "
+                       "drivers/anisotropy_study.toml):\n" + describe(COMPRESS_SCHEMA) +
+                       "\n\nexit codes: 0 ok, 1 unexpected error, 2 bad input")
+    p.comm = comm
+    p.add_argument("--config", metavar="FILE.toml", help="input deck (default: the study's built-in deck)")
+    p.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[], dest="overrides",
+                   help="override one deck key (repeatable, applied after --config and --quick)")
+    p.add_argument("--out", metavar="DIR", help="output directory (default runs/anisotropy-<timestamp>)")
+    p.add_argument("--kinds", metavar="LIST", help="domain kinds, comma-separated: ordered, compact "
+                                                    "(default: both)")
+    p.add_argument("--laws", metavar="LIST", help=f"anisotropy laws (default: {','.join(study.LAWS)})")
+    p.add_argument("--ratios", metavar="LIST", help="bond ratios E_L/E_R, each > 0 "
+                                                     "(default: 1,5,10,15,20,25)")
+    p.add_argument("--realisations", metavar="N", help="compact realisations (default 10; the ordered "
+                                                        "lattice runs once)")
+    p.add_argument("--xi-step", metavar="DEG", dest="xi_step",
+                   help="off-axis tilt step dividing 90 (default 10; 0 = no off-axis sweep)")
+    p.add_argument("--offaxis-ratio", metavar="Q", dest="offaxis_ratio",
+                   help="E_L/E_R of the off-axis sweep (default: the largest of --ratios)")
+    p.add_argument("--transits", metavar="N", help=f"loading time in axial wave transits, in [1, 1000] "
+                                                   f"(default {study.DEFAULT_TRANSITS:g})")
+    p.add_argument("--quick", action="store_true",
+                   help="a small study for tests: boxes of 18 radii, ratios 1,5, 2 realisations, xi step 45")
+    p.add_argument("--no-plot", action="store_true", dest="no_plot", help="do not write anisotropy.png")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    return p
+
+
+def _number(name, text, lo, hi, integer=False):
+    try:
+        v = int(text) if integer else float(text)
+    except ValueError:
+        v = None
+    if v is None or not np.isfinite(v) or not lo <= v <= hi:
+        kind = "an integer" if integer else "a number"
+        raise DeckError(f"{name} {text}: expected {kind} in [{lo:g}, {hi:g}]")
+    return v
+
+
+def _numbers(name, text, lo, hi):
+    """Distinct numbers of a comma-separated list, each in [lo, hi]."""
+    try:
+        return tuple(dict.fromkeys(_number(name, t, lo, hi) for t in text.split(",")))
+    except DeckError:
+        raise DeckError(f"{name} {text}: expected a comma-separated list of numbers in [{lo:g}, {hi:g}]") from None
+
+
+def _names(name, text, allowed):
+    out = []
+    for word in text.split(","):
+        match = [a for a in allowed if a.lower() == word.strip().lower()]
+        if not match:
+            raise DeckError(f"{name} {text}: expected a comma-separated list of {', '.join(allowed)}")
+        out.append(match[0])
+    return tuple(dict.fromkeys(out))
+
+
+def make_plan(args, deck):
+    """The study plan from the options and the checked deck; DeckError on a bad option."""
+    kinds = study.KINDS if args.kinds is None else _names("--kinds", args.kinds, study.KINDS)
+    laws = study.LAWS if args.laws is None else _names("--laws", args.laws, study.LAWS)
+    quick = study.QUICK_PLAN if args.quick else {}
+    if args.ratios is not None:
+        ratios = _numbers("--ratios", args.ratios, 1e-3, 1e4)
+    else:
+        ratios = quick.get("ratios", study.DEFAULT_RATIOS)
+    realisations = (_number("--realisations", args.realisations, 1, 1000, integer=True)
+                    if args.realisations is not None else quick.get("realisations", 10))
+    xi_step = _number("--xi-step", args.xi_step, 0, 90) if args.xi_step is not None else quick.get("xi_step", 10.0)
+    if xi_step and abs(90.0 / xi_step - round(90.0 / xi_step)) > 1e-9:
+        raise DeckError(f"--xi-step {args.xi_step}: expected 0 or a step in (0, 90] dividing 90 (e.g. 5, 10, 15, 45)")
+    q_off = (_number("--offaxis-ratio", args.offaxis_ratio, 1e-3, 1e4) if args.offaxis_ratio is not None
+             else max(ratios))
+    transits = (_number("--transits", args.transits, 1, 1000) if args.transits is not None
+                else study.DEFAULT_TRANSITS)
+    E_R, E_T = study.bond_moduli(deck)
+    return study.StudyPlan(kinds=kinds, laws=laws, ratios=ratios, E_R=E_R, E_T=E_T,
+                           realisations=realisations, xi_step=xi_step, offaxis_ratio=q_off,
+                           transits=transits, base_seed=int(deck["domain"].get("seed", 0)))
+
+
+def main(argv=None):
+    comm = Communicator()
+    args = parser(comm).parse_args(argv)
+    try:
+        return run(comm, args)
+    except SystemExit:
+        raise
+    except Exception as exc:  # noqa: BLE001 - any other failure must end every rank
+        report_and_abort(comm, exc)
+
+
+def _case_comm():
+    from mpi4py import MPI
+    return Communicator(MPI.COMM_SELF)
+
+
+def _finite_or_none(obj):
+    """JSON without NaN/inf: undefined numbers become null."""
+    if isinstance(obj, dict):
+        return {k: _finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite_or_none(v) for v in obj]
+    if isinstance(obj, (float, np.floating)) and not np.isfinite(obj):
+        return None
+    return obj
+
+
+def run(comm, args):
+    t_start = time.perf_counter()
+    case_comm = _case_comm()
+    try:
+        overrides = (study.QUICK_SET if args.quick else []) + args.overrides
+        deck = load_deck(COMPRESS_SCHEMA, args.config, overrides,
+                         base=None if args.config else study.STUDY_DECK)
+        plan = make_plan(args, deck)
+    except DeckError as err:
+        fail_usage(comm, str(err))
+    # refuse an unusable deck before any case runs: the rank that will run realisation 0 of each kind
+    # builds its domains (loaded along x, y, z) and keeps the packings for it
+    packings = {}
+    for kind in plan.kinds:
+        root, problem = study.owner(plan, comm.size, kind, 0), None
+        if comm.rank == root:
+            try:
+                for axis in study.AXES:
+                    first = study.Case(kind, 0, plan.laws[0], plan.ratios[0], axis)
+                    packings[kind, 0, axis] = study.realisation_packing(deck, plan, first)
+                    build_case(case_comm, study.case_deck(deck, plan, first), packing=packings[kind, 0, axis])
+            except DeckError as err:
+                problem = str(err)
+        problem = comm.bcast(problem, root=root)
+        if problem:
+            fail_usage(comm, problem)
+    plot = not args.no_plot
+    if plot and comm.is_root:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            plot = False
+            sys.stderr.write("pardem: note: matplotlib is not installed, so no anisotropy.png "
+                             "(pip install 'pardem[plot]')\n")
+    out = args.out or os.path.join("runs", "anisotropy-" + comm.bcast(
+        datetime.datetime.now().strftime("%Y%m%d-%H%M%S")))
+    n_cases = sum(len(g) for g in study.plan_cases(plan))
+    if comm.is_root:
+        os.makedirs(out, exist_ok=True)
+        print(f"pardem {pardem.__version__}: anisotropy study, {n_cases} compressions on {comm.size} "
+              f"rank(s): kinds {','.join(plan.kinds)}, laws {','.join(plan.laws)}, E_L/E_R "
+              f"{','.join(f'{q:g}' for q in plan.ratios)} (E_R = {plan.E_R / 1e6:g} MPa, E_T = "
+              f"{plan.E_T / 1e6:g} MPa), off-axis xi {','.join(f'{x:g}' for x in plan.xis()) or 'none'} "
+              f"at E_L/E_R = {plan.offaxis_ratio:g}; output {out}", flush=True)
+    progress = None if args.quiet else _progress(time.perf_counter())
+    records = study.run_study(comm, case_comm, deck, plan, progress, packings)
+    if comm.is_root:
+        data = study.summarise(records, plan)
+        failed = [r for r in records if r["status"] != "ok"]
+        data["meta"] = {
+            "pardem_version": pardem.__version__, "driver": "anisotropy", "n_ranks": comm.size,
+            "wall_seconds": time.perf_counter() - t_start, "plan": asdict(plan), "xi_deg": plan.xis(),
+            "n_cases": len(records), "n_failed_cases": len(failed),
+            "ordered": "the ordered lattice is deterministic: each of its cases ran once, so its std is 0",
+            "statistics": "mean and sample standard deviation (ddof = 1) over the realisations whose L, R "
+                          "and T compressions all succeeded; ratios are taken per realisation",
+            "off_axis": "every law at bond ratio offaxis_ratio, compression along x with the LRT frame "
+                        "tilted by xi about z; E_hankinson from the E_mean of xi = 0 and xi = 90",
+            "status": "ok, or lost_contact (a plate stopped pushing), rotated (the loaded faces did not stay "
+                      "flat: the domain rotated or slid between the frictionless plates), dynamic (the plate "
+                      "forces, or the slopes over the two halves of the fitted phase, still disagree after "
+                      "the slower retries), unstable, bad_input (e.g. a packing the builder refused)",
+            "deck": deck, "cases": records,
+        }
+        write_json(os.path.join(out, "anisotropy.json"), _finite_or_none(data))
+        print(study.format_table(data, plan))
+        written = ["anisotropy.json"]
+        if plot:
+            from pardem.anisotropy_plot import plot_study
+            plot_study(data, plan, os.path.join(out, "anisotropy.png"))
+            written.append("anisotropy.png")
+        if failed:
+            kinds = sorted({r["status"] for r in failed})
+            print(f"warning: {len(failed)} of {len(records)} compressions are not valid measurements "
+                  f"({', '.join(kinds)}); they are left out of the statistics", file=sys.stderr)
+        print(f"wrote {' and '.join(os.path.join(out, w) for w in written)} in "
+              f"{data['meta']['wall_seconds']:.1f} s", flush=True)
+    return EXIT_OK
+
+
+def _progress(t0):
+    def report(done, total, rec):
+        E = rec["E"] / 1e6 if np.isfinite(rec["E"]) else float("nan")
+        print(f"[rank 0 {done:>4d}/{total}] {rec['kind']} {rec['law']} E_L/E_R = {rec['ratio']:g} "
+              f"along {rec['axis']}, tilt {rec['tilt_deg']:g}, realisation {rec['realisation']}: "
+              f"E = {E:.4g} MPa {rec['status']} ({rec['seconds']:.2f} s, {time.perf_counter() - t0:.0f} s "
+              f"elapsed)", flush=True)
+    return report
+
+
+if __name__ == "__main__":
+    sys.exit(main())
