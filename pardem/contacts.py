@@ -71,6 +71,9 @@ class Contacts:
         self.sums = np.zeros(10)
         self.builds = 0
         self.cut = float(reach)
+        if cell is not None and cell.deforming and not self.cut > 0.0:
+            raise ValueError("Contacts in a deforming cell need reach = 2 R_max + skin (> 0): it "
+                             "scales the rebuild margin")
 
     # -- list -----------------------------------------------------------------------------
 
@@ -89,6 +92,13 @@ class Contacts:
             raise ValueError("element gids must be below 2^31 for the contact keys")
         kw = {}
         if self.cell is not None:
+            # checked with the global reach, the same on every rank (the list's own check uses
+            # this rank's largest radius: ranks could disagree and leave the others waiting)
+            short = self.cell.periodic & (self.cell.length < 2.0 * self.cut)
+            if np.any(short):
+                a = int(np.argmax(short))
+                raise ValueError(f"periodic axis {'xyz'[a]}: period {self.cell.length[a]:.6g} m is "
+                                 f"shorter than twice the contact reach 2 R_max + skin = {self.cut:.6g} m")
             kw = {"box_lo": self.cell.lo, "box_hi": self.cell.hi}
         self.vl.rebuild(e.x, e.radius, e.gid, e.n_owned, e.n_total, **kw)
         pairs, shifts = self.vl.pairs, self.vl.shifts
@@ -130,8 +140,11 @@ class Contacts:
         ``x_build`` [n_owned, 3] (single process) the rebuild reference positions too."""
         e = elements
         order = np.argsort(e.gid, kind="stable")
-        rows_i = order[np.searchsorted(e.gid[order], gid_i)]
-        rows_j = order[np.searchsorted(e.gid[order], gid_j)]
+        if len(gid_i) and len(order) == 0:
+            raise ValueError("a stored contact's element is not held by this rank")
+        top = max(len(order) - 1, 0)
+        rows_i = order[np.minimum(np.searchsorted(e.gid[order], gid_i), top)] if len(order) else gid_i
+        rows_j = order[np.minimum(np.searchsorted(e.gid[order], gid_j), top)] if len(order) else gid_j
         if len(gid_i) and (np.any(e.gid[rows_i] != gid_i) or np.any(e.gid[rows_j] != gid_j)):
             raise ValueError("a stored contact's element is not held by this rank")
         self.adopt(rows_i, rows_j, shifts, pair_keys(gid_i, gid_j), history)

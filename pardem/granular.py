@@ -74,6 +74,9 @@ def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, 
     Rank r keeps its slab's elements (slabs along ``slab_axis``, balanced counts).
     """
     pos = np.asarray(positions, dtype=np.float64)
+    per = np.asarray(periodic, dtype=bool)
+    lo0, edge = np.asarray(box_lo, dtype=np.float64), np.asarray(box_length, dtype=np.float64)
+    pos = np.where(per, lo0 + np.mod(pos - lo0, edge), pos)   # slabs are cut in the cell's frame
     n = len(pos)
     radii = np.broadcast_to(np.asarray(radii, dtype=np.float64), (n,))
     prm = law_params(law, params)
@@ -106,6 +109,9 @@ def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, 
         domain = SlabComm(comm, slabs, reach, skin, balance_every=balance_every, cell=cell)
         e, bonds, table = domain.setup_with_pairs(e, bonds, contacts.table())
         contacts.rebuild(e, bonds, table)
+    else:
+        cell.wrap(e)
+        contacts.rebuild(e, bonds)
     sim = Simulation(comm, e, bonds, None, dt, domain=domain, contacts=contacts, cell=cell,
                      viscous_damping=viscous_damping)
     return GranularCase(sim=sim, constants=constants)
@@ -181,7 +187,13 @@ def restore(comm, path):
                               cell=cell)
             e, bonds = domain.borders(e, bonds, extra=c["skin"])
             domain.x_build = el["x_build"].copy()
-            contacts.restore(e, cl["gid_i"], cl["gid_j"], cl["shifts"], cl["history"])
+            err = None
+            try:
+                contacts.restore(e, cl["gid_i"], cl["gid_j"], cl["shifts"], cl["history"])
+            except ValueError as exc:
+                err = exc
+            if comm.any(err is not None):    # every rank stops, none is left waiting
+                raise err or ValueError("a stored contact's element is missing on another rank")
         else:
             contacts.restore(e, cl["gid_i"], cl["gid_j"], cl["shifts"], cl["history"],
                              x_build=el["x_build"])

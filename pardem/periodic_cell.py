@@ -70,9 +70,10 @@ class PeriodicCell:
         return self.servo is not None or bool(np.any(self.rate != 0.0))
 
     def deform(self, elements, dt, references=()):
-        """Map the owned rows and the ``references`` position arrays affinely over one step."""
+        """Map the owned rows and the ``references`` position arrays affinely over one step;
+        returns the step's stretch factor per axis [3] (None when the cell does not deform)."""
         if not self.deforming:
-            return
+            return None
         factor = 1.0 + self.rate * dt
         _affine_map(elements.x, elements.n_owned, self.lo, factor)
         for ref in references:
@@ -81,6 +82,7 @@ class PeriodicCell:
         self.length *= factor
         self.strain += np.log(factor)
         self.strain_since_build += float(np.max(np.abs(np.log(factor))))
+        return factor
 
     def wrap(self, elements):
         """Bring the owned rows into ``[lo, lo + L)`` along the periodic axes (at list rebuilds)."""

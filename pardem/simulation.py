@@ -110,7 +110,9 @@ class Simulation:
         e = self.elements
         kick_drift(e.x, e.v, e.w, e.q, e.rot, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned)
         if self.cell is not None:
-            self.cell.deform(e, self.dt, self._reference_positions())
+            factor = self.cell.deform(e, self.dt, self._reference_positions())
+            if factor is not None and self.domain is not None:
+                self.domain.follow_cell(factor)
         if self.plates is not None:
             self.plates.move_to((self.step_count + 1) * self.dt)
         t1 = _time.perf_counter()

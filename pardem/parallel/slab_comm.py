@@ -203,6 +203,14 @@ class SlabComm:
             r.wait()
         return got
 
+    def follow_cell(self, factor):
+        """Map the slab cuts with the cell's affine step (``factor`` [3]), so that the slabs keep
+        their elements and relative widths while the cell deforms (the same on every rank)."""
+        a = self.slabs.axis
+        if self.cell is not None and factor[a] != 1.0:
+            lo = self.cell.lo[a]
+            self.slabs.cut_s = lo + (np.asarray(self.slabs.cut_s) - lo) * factor[a]
+
     def _bounds(self, rank):
         lo, hi = self.slabs.bounds(rank)
         if self.periodic:   # the end slabs stop at the cell's faces

@@ -25,6 +25,7 @@ p.add_argument("--slab-axis", type=int, default=0)
 p.add_argument("--law", default="hertz_mindlin")
 p.add_argument("--n", type=int, default=9)
 p.add_argument("--random", action="store_true", help="uniform random centres, radii R (1 +- 0.2)")
+p.add_argument("--rate", type=float, default=None, help="isotropic strain rate of the cell [1/s]")
 a = p.parse_args()
 comm = Communicator()
 
@@ -43,6 +44,8 @@ else:
               if a.law == "hertz_mindlin" else {"kn": 2e5, "kt": 1.5e5, "friction": 0.4, "restitution": 0.8})
     servo = (5e6, 2e-6, 20.0) if a.servo else None
     rate = (0.0, 0.0, 0.0) if a.servo else (-300.0, -200.0, -100.0)
+    if a.rate is not None:
+        rate = (a.rate,) * 3
     case = granular.build(comm, pos, radii, 2500.0, a.law, params, np.zeros(3), np.full(3, L), 1e-8,
                           0.05 * R, rate=rate, servo=servo, velocities=vel,
                           angular_velocities=omega, slab_axis=a.slab_axis, balance_every=50)
@@ -86,7 +89,8 @@ if comm.rank == 0:
     np.savez(a.out, gid=cat["gid"][o], x=cat["x"][o], v=cat["v"][o], w=cat["w"][o],
              radius=cat["radius"][o], skin=c.skin,
              keys=cat["keys"][ho], hist=cat["hist"][ho], energies=np.array(energies),
-             pairs=np.unique(cat["pairs"]), length=sim.cell.length, rate=sim.cell.rate)
+             pairs=np.unique(cat["pairs"]), length=sim.cell.length, rate=sim.cell.rate,
+             cuts=sim.domain.slabs.cut_s if sim.domain is not None else np.zeros(0))
 if comm.rank == 0:
     import sys
     print("rebuilds", c.builds, "contacts", len(cat["keys"]), "rebalances",
