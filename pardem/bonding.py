@@ -16,12 +16,29 @@ class BeamMaterial:
     """young [Pa] and radius_ratio (r = ratio * mean(R1, R2)): scalar or (L, R, T) values.
 
     poisson : bond Poisson ratio, G = E / (2 (1 + poisson)); damping : ratio zeta of each mode.
+    tensile_strength, shear_strength [Pa] : rupture thresholds on F / S and |T| / S, scalar or
+        (L, R, T) values following ``law`` (PHYSICS.md section 7); 0 = unbreakable.
+    densification_stress [Pa] : threshold sigma0 of the bonds initially along T (the frame axis
+        closest to the bond is T); 0 = elastic. densification_p0 : the factor p0 of section 7.
     """
     young: tuple
     radius_ratio: tuple
     poisson: float
     damping: float
     law: str = "TOR"
+    tensile_strength: tuple = 0.0
+    shear_strength: tuple = 0.0
+    densification_stress: float = 0.0
+    densification_p0: float = 0.0
+
+    @property
+    def breakable(self):
+        return bool(np.any(np.asarray(self.tensile_strength) > 0.0)
+                    or np.any(np.asarray(self.shear_strength) > 0.0))
+
+    @property
+    def densifies(self):
+        return self.densification_stress > 0.0 and self.densification_p0 > 0.0
 
 
 def _reference_normal(n):
@@ -70,6 +87,11 @@ def make_bonds(elements, pairs, material, frame, gids=None):
     tau_a = 2.0 * zeta * np.sqrt(m_red / ka)
     tau_b = 2.0 * zeta * np.sqrt(i_red * L0 / kb)
     tau_t = 2.0 * zeta * np.sqrt(i_red / kt)
+    f_tensile = _threshold(material.law, n, frame, material.tensile_strength) * S
+    f_shear = _threshold(material.law, n, frame, material.shear_strength) * S
+    along_t = np.argmax(anisotropy.direction_angles(n, frame)[0], axis=1) == 2
+    f_yield = np.where(along_t, material.densification_stress * S, 0.0) if material.densifies \
+        else np.zeros(len(L0))
     p = _reference_normal(n)
     # body-frame copies: R^T v for each end
     to_body = lambda rows, vec: np.einsum("kji,kj->ki", e.rot[rows], vec)
@@ -80,5 +102,15 @@ def make_bonds(elements, pairs, material, frame, gids=None):
         gid_i=e.gid[i].copy(), gid_j=e.gid[j].copy(),
         L0=L0, ka=ka, kb=kb, kt=kt, tau_a=tau_a, tau_b=tau_b, tau_t=tau_t,
         u1=to_body(i, n), p1=to_body(i, p), u2=to_body(j, n), p2=to_body(j, p),
-        young=young, radius=r, damped=bool(zeta > 0.0),
+        young=young, radius=r, state=np.zeros(nb, np.uint8), f_tensile=f_tensile, f_shear=f_shear,
+        f_yield=f_yield, plastic=np.zeros(nb), damped=bool(zeta > 0.0),
+        breakable=material.breakable,
+        densify_p0=float(material.densification_p0) if material.densifies else 0.0,
     )
+
+
+def _threshold(law, n, frame, strength):
+    """Strength [Pa] of each bond direction by the anisotropy law; inf where it is 0 (unbreakable)."""
+    if np.all(np.asarray(strength) == 0.0):
+        return np.full(len(n), np.inf)
+    return anisotropy.evaluate(law, n, frame, strength)

@@ -12,9 +12,13 @@ import numpy as np
 from pardem.bonding import BeamMaterial, make_bonds
 from pardem.config import DeckError, physics_differences
 from pardem.io import checkpoint
-from pardem.io.checkpoint import BOND_DATASETS, ELEMENT_DATASETS
+from pardem.io.checkpoint import BOND_DATASETS, CONTACT_DATASETS, ELEMENT_DATASETS
 from pardem.domains import compact
+from pardem.contacts import Contacts, pair_keys
 from pardem.domains.ordered import ordered_lattice
+from pardem.granular import LAWS as CONTACT_LAWS
+from pardem.granular import critical_time_step as contact_critical_time_step
+from pardem.granular import law_params
 from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs, choose_axis
 from pardem.physics import walls
@@ -125,15 +129,27 @@ def build_case(comm, deck, steps=None, packing=None):
     elements = Elements.from_spheres(pos[rows], radii[rows], dom["density"], gids[rows])
     elements.n_owned = int(owned.sum())
     elements.flags[near_plate[rows]] |= FLAG_NEAR_PLATE
+    for key in ("tensile_strength", "shear_strength"):
+        v = np.atleast_1d(bd[key])
+        if np.any(v == 0.0) and np.any(v > 0.0):
+            raise DeckError(f"bonds.{key} = {list(v)}: expected one number, or three values all > 0 "
+                            f"(0 alone = unbreakable)")
     material = BeamMaterial(young=bd["young"], radius_ratio=bd["radius_ratio"],
-                            poisson=bd["poisson"], damping=bd["damping"], law=bd["law"])
+                            poisson=bd["poisson"], damping=bd["damping"], law=bd["law"],
+                            tensile_strength=bd["tensile_strength"], shear_strength=bd["shear_strength"],
+                            densification_stress=bd["densification_stress"],
+                            densification_p0=bd["densification_p0"])
     bonds = make_bonds(elements, local_row[pairs[touch]], material, frame, gids=bond_gids[touch])
 
     skin = 0.2 * R if par["skin"] == "auto" else par["skin"]
+    contact_law, contact_params = _contact_law(comm, deck, bonds, elements, material)
+    reach = 2.0 * float(radii.max()) + skin
     ghost_range = GHOST_STRETCH * comm.max(float(bonds.L0.max()) if bonds.n else 0.0) + skin
+    if contact_law != "none":
+        ghost_range = max(ghost_range, reach)
     domain = _slab_comm(comm, slabs, ghost_range, skin, par)
-    if domain is not None:
-        elements, bonds = domain.setup(elements, bonds)
+    contacts = _contacts(contact_law, contact_params, skin, reach)
+    elements, bonds = _setup(domain, contacts, elements, bonds)
 
     k_plate = _global_mean_axial_stiffness(comm, bonds, elements) if deck["plates"]["stiffness"] == "auto" \
         else deck["plates"]["stiffness"]
@@ -152,6 +168,9 @@ def build_case(comm, deck, steps=None, packing=None):
     lam = eigen_bound(bonds.i, bonds.j, bonds.L0, bonds.ka, bonds.kb, bonds.kt, elements.mass,
                       elements.inertia, elements.n_owned, k_plate / elements.mass)
     dt_c = critical_time_step(comm.max(lam), comm.max(max_tau(bonds)))
+    if contacts is not None:
+        dt_c = min(dt_c, contact_critical_time_step(contact_law, contacts.params, radii,
+                                                    dom["density"]))
     if run["dt"] == "auto":
         dt = run["dt_fraction"] * dt_c
     else:
@@ -175,9 +194,49 @@ def build_case(comm, deck, steps=None, packing=None):
         "n_elements": n_global,
         "n_bonds": len(pairs), "origin": 0.5 * (pos.min(axis=0) + pos.max(axis=0)),
         "slab_axis": slab_axis, "ghost_range": ghost_range, "skin": skin, "damped": bonds.damped,
+        "breakable": bonds.breakable, "densify_p0": bonds.densify_p0,
+        "contact_law": contact_law, "contact_params": contact_params, "contact_reach": reach,
         **facts,
     }
-    return _assemble(comm, deck, elements, bonds, domain, constants, steps)
+    return _assemble(comm, deck, elements, bonds, domain, constants, steps, contacts=contacts)
+
+
+def _contact_law(comm, deck, bonds, elements, material):
+    """(law name, params dict) of the deck's element-element contacts ("none", {} when off)."""
+    ct = deck["contacts"]
+    law = ct["law"]
+    if law == "auto":
+        law = "hertz_mindlin" if material.breakable else "none"
+    common = {"friction": ct["friction"], "restitution": ct["restitution"]}
+    if law == "hertz_mindlin":
+        young = comm.max(float(bonds.young.max()) if bonds.n else 0.0) if ct["young"] == "auto" else ct["young"]
+        return law, {"young": young, "poisson": ct["poisson"], **common}
+    if law == "linear":
+        k = _global_mean_axial_stiffness(comm, bonds, elements) if ct["stiffness"] == "auto" else ct["stiffness"]
+        return law, {"kn": k, "kt": k, **common}
+    return "none", {}
+
+
+def _contacts(law, params, skin, reach):
+    """The ``Contacts`` of a bonded domain (no periodic cell), or None."""
+    if law == "none":
+        return None
+    return Contacts(CONTACT_LAWS[law], law_params(law, params), skin, None, reach=reach)
+
+
+def _setup(domain, contacts, elements, bonds, table=None):
+    """Migration, ghosts and a new contact list (histories from ``table``, default none)."""
+    if contacts is not None and table is None:
+        table = contacts.table()
+    if domain is None:
+        if contacts is not None:
+            contacts.rebuild(elements, bonds, table)
+        return elements, bonds
+    if contacts is None:
+        return domain.setup(elements, bonds)
+    elements, bonds, table = domain.setup_with_pairs(elements, bonds, table)
+    contacts.rebuild(elements, bonds, table)
+    return elements, bonds
 
 
 def _compact_domain(comm, dom, axis, packing=None):
@@ -239,7 +298,7 @@ def _slab_comm(comm, slabs, ghost_range, skin, par):
                     threshold=par["balance_threshold"], balance_by=par["balance_by"])
 
 
-def _assemble(comm, deck, elements, bonds, domain, constants, steps, step=0, samples=()):
+def _assemble(comm, deck, elements, bonds, domain, constants, steps, step=0, samples=(), contacts=None):
     """The case from its state and constants; ``steps`` = total steps from the run's start."""
     c = constants
     ld = deck["loading"]
@@ -249,7 +308,7 @@ def _assemble(comm, deck, elements, bonds, domain, constants, steps, step=0, sam
     if steps is None:
         t_end = plates.time_to_travel(ld["strain"] * c["length"])
         steps = max(1, math.ceil(t_end / c["dt"] - 1e-9))
-    sim = Simulation(comm, elements, bonds, plates, c["dt"], domain=domain)
+    sim = Simulation(comm, elements, bonds, plates, c["dt"], domain=domain, contacts=contacts)
     sim.step_count = int(step)
     sim.time = sim.step_count * sim.dt
     plates.move_to(sim.time)
@@ -269,18 +328,28 @@ def checkpoint_payload(case):
         elements["wall_h"] = e.wall_h[:n]
     once = b.counted_once(n)
     bonds = {k: getattr(b, k)[once] for k in BOND_DATASETS}
+    groups = {"elements": elements, "bonds": bonds}
+    c = sim.contacts
+    if c is not None:
+        groups["contacts"] = {"gid_i": e.gid[c.i], "gid_j": e.gid[c.j], "shifts": c.shifts,
+                              "history": c.history}
     series = samples_to_columns(case.samples)
     slabs = sim.domain.slabs if sim.domain is not None else None
     attrs = {"step": sim.step_count, "time": sim.time, "deck": case.deck, "constants": case.constants,
              "plate_positions": sim.plates.positions.copy(), "plate_velocities": sim.plates.velocities(sim.time),
              "rng_state": {"generator": None}, "slab_axis": case.slab_axis,
+             # a bond broke in the last step: the contact list is rebuilt at the next one
+             "pairs_freed": int(sim.comm.any(sim.pairs_freed)),
              "slab_cut_s": slabs.cut_s if slabs is not None else np.zeros(0),
              "slab_cut_g": slabs.cut_g if slabs is not None else np.zeros(0, dtype=np.int64)}
-    return {"elements": elements, "bonds": bonds}, series, attrs
+    return groups, series, attrs
+
+
+SAMPLE_COUNTS = ("bonds_broken", "bonds_broken_step", "bonds_yielded")
 
 
 def samples_to_columns(samples):
-    keys = ("step", "time", "plate_displacement", "force_fixed", "force_moving")
+    keys = ("step", "time", "plate_displacement", "force_fixed", "force_moving") + SAMPLE_COUNTS
     cols = {k: np.array([s[k] for s in samples]) for k in keys}
     cols["H"] = np.array([s["H"] for s in samples]).reshape(-1, 3, 3)
     return cols
@@ -293,7 +362,9 @@ def columns_to_samples(cols):
         out.append({"step": int(cols["step"][k]), "time": float(cols["time"][k]),
                     "plate_displacement": float(cols["plate_displacement"][k]),
                     "force_fixed": float(cols["force_fixed"][k]), "force_moving": float(cols["force_moving"][k]),
-                    "H": H, "eps": 0.5 * (H + H.T)})
+                    "H": H, "eps": 0.5 * (H + H.T),
+                    # series of checkpoints written before bonds could break hold no counts
+                    **{c: int(cols[c][k]) if c in cols else 0 for c in SAMPLE_COUNTS}})
     return out
 
 
@@ -334,27 +405,67 @@ def restore_case(comm, deck, path, steps=None):
         el = checkpoint.read_rows(path, "elements", names, (["x", "gid"], lambda d: slabs.owner(
             d["x"][:, slab_axis], d["gid"]) == comm.rank))
     mine = el["gid"]
-    bd = checkpoint.read_rows(path, "bonds", list(BOND_DATASETS), (["gid_i", "gid_j"], lambda d: np.isin(
-        d["gid_i"], mine) | np.isin(d["gid_j"], mine)))
+    bd = checkpoint.read_rows(path, "bonds", checkpoint.bond_datasets(path), (["gid_i", "gid_j"],
+                              lambda d: np.isin(d["gid_i"], mine) | np.isin(d["gid_j"], mine)))
     n = len(mine)
     el["inv_mass"] = 1.0 / el["mass"]
     el["inv_inertia"] = 1.0 / el["inertia"]
     elements = Elements.unpack([el], n, copy=False)
-    bonds = Bonds.unpack([bd], bool(c["damped"]), copy=False)
+    bonds = Bonds.unpack([bd], bool(c["damped"]), copy=False, breakable=c.get("breakable", False),
+                         densify_p0=c.get("densify_p0", 0.0))
     domain = _slab_comm(comm, slabs, c["ghost_range"], c["skin"], par)
-    if domain is None:
+    law = c.get("contact_law", "none")
+    contacts = _contacts(law, c.get("contact_params", {}), c["skin"], c.get("contact_reach", 0.0))
+    if contacts is not None:
+        cl = checkpoint.read_rows(path, "contacts", list(CONTACT_DATASETS), slice(0, None))
+    if same and domain is None:
         bonds.relink(elements.gid)
+        if contacts is not None:
+            _restore_contacts(comm, contacts, elements, cl, x_build=el["x_build"])
     elif same:
-        elements, bonds = domain.borders(elements, bonds)
+        elements, bonds = domain.borders(elements, bonds, extra=c["skin"] if contacts is not None else 0.0)
         domain.x_build = el["x_build"].copy()    # same rebuild steps as the uninterrupted run
+        if contacts is not None:
+            _restore_contacts(comm, contacts, elements, _this_ranks_block(meta, cl, comm.rank))
     else:
-        elements, bonds = domain.setup(elements, bonds)
+        if domain is None:
+            bonds.relink(elements.gid)
+        elements, bonds = _setup(domain, contacts, elements, bonds,
+                                 None if contacts is None else _contact_table(cl))
     srt = np.argsort(el["gid"])     # the rows may have been reordered (migration sorts by gid)
     order = srt[np.searchsorted(el["gid"][srt], elements.gid[:elements.n_owned])]
     elements.f[:elements.n_owned] = el["f"][order]
     elements.t[:elements.n_owned] = el["t"][order]
-    return _assemble(comm, deck, elements, bonds, domain, c, steps, step=int(meta["step"]),
-                     samples=columns_to_samples(meta["series"]))
+    case = _assemble(comm, deck, elements, bonds, domain, c, steps, step=int(meta["step"]),
+                     samples=columns_to_samples(meta["series"]), contacts=contacts)
+    case.sim.pairs_freed = bool(int(meta.get("pairs_freed", 0)))
+    return case
+
+
+def _this_ranks_block(meta, cl, rank):
+    counts = np.asarray(meta["contacts_counts"], dtype=np.int64)
+    off = int(counts[:rank].sum())
+    return {k: v[off:off + int(counts[rank])] for k, v in cl.items()}
+
+
+def _contact_table(cl):
+    """The stored pairs with a history (unique), for a list rebuilt on other rows."""
+    live = np.any(cl["history"] != 0.0, axis=1)
+    _, first = np.unique(pair_keys(cl["gid_i"][live], cl["gid_j"][live]), return_index=True)
+    return {k: cl[k][live][first] for k in ("gid_i", "gid_j", "history")}
+
+
+def _restore_contacts(comm, contacts, elements, cl, x_build=None):
+    """Take back a stored list on the same rows (bit-for-bit restart); collective failure."""
+    err = None
+    try:
+        contacts.restore(elements, cl["gid_i"], cl["gid_j"], cl["shifts"], cl["history"], x_build=x_build)
+    except ValueError as exc:
+        err = exc
+    if comm.any(err is not None):    # every rank stops, none is left waiting
+        raise err or ValueError("a stored contact's element is missing on another rank")
+
+
 
 
 def _global_mean_axial_stiffness(comm, bonds, elements):
@@ -501,7 +612,9 @@ def measure(case):
     two plate forces cancels the domain's inertial force to first order and the slope removes the
     constant viscous stress of the bond damping, so this is the quasi-static modulus.
     ``young_modulus_secant``: W's definition, fixed-plate force over section and strain at the end.
-    Poisson ratios and the strain tensor are those of the last sample.
+    Poisson ratios, the strain tensor and the bond counts are those of the last sample;
+    ``peak_stress`` [Pa] is the largest fixed-plate force over the section, at ``strain_at_peak``
+    (axial strain, compression positive).
     """
     a = case.axis
     last = case.samples[-1]
@@ -514,6 +627,10 @@ def measure(case):
         E_tan = float(np.polyfit(eps[keep], F[keep], 1)[0] / case.cross_section)
     else:
         E_tan = float("nan")
+    peak = int(np.argmax([s["force_fixed"] for s in case.samples]))
     return {"young_modulus": E_tan, "young_modulus_secant": E_sec, "poisson_ratios": nus,
             "strain_tensor": last["eps"], "plate_force": last["force_fixed"],
-            "plate_force_moving": last["force_moving"]}
+            "plate_force_moving": last["force_moving"],
+            "peak_stress": case.samples[peak]["force_fixed"] / case.cross_section,
+            "strain_at_peak": float(eps[peak]),
+            "bonds_broken": last["bonds_broken"], "bonds_yielded": last["bonds_yielded"]}

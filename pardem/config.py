@@ -149,6 +149,31 @@ COMPRESS_SCHEMA = {
                               "bond radius / mean element radius, or [r_L, r_R, r_T]"),
         "poisson": Field(0.3, number(-1.0, 0.5), "bond Poisson ratio"),
         "damping": Field(0.2, number(0.0, 1.0, lo_open=False, hi_open=False), "bond damping ratio"),
+        "tensile_strength": Field(0.0, number_or_triple(number(lo=0.0, lo_open=False)),
+                                  "bond tensile strength sigma_max = F / S [Pa], or [L, R, T] (all > 0, "
+                                  "by the anisotropy law); 0 = unbreakable in tension"),
+        "shear_strength": Field(0.0, number_or_triple(number(lo=0.0, lo_open=False)),
+                                "bond shear strength tau_max = |T| / S [Pa], or [L, R, T] (all > 0); "
+                                "0 = unbreakable in shear"),
+        "densification_stress": Field(0.0, number(lo=0.0, lo_open=False),
+                                      "densification threshold sigma0 [Pa] of the bonds initially along "
+                                      "T, in compression (PHYSICS.md section 7); 0 = elastic"),
+        "densification_p0": Field(0.05, positive(),
+                                  "densification factor p0: the threshold grows as exp(p / p0) with "
+                                  "the plastic strain p"),
+    },
+    "contacts": {
+        "law": Field("auto", choice("auto", "none", "hertz_mindlin", "linear"),
+                     "element-element contacts (pairs not joined by an intact bond); auto = "
+                     "hertz_mindlin when bonds can break, none otherwise"),
+        "young": Field("auto", auto_or(positive()),
+                       "hertz_mindlin: Young's modulus of the elements [Pa]; auto = the largest bond modulus"),
+        "poisson": Field(0.3, number(-1.0, 0.5), "hertz_mindlin: Poisson ratio of the elements"),
+        "stiffness": Field("auto", auto_or(positive()),
+                           "linear: kn = kt [N/m]; auto = the mean axial bond stiffness"),
+        "friction": Field(0.3, number(lo=0.0, lo_open=False), "Coulomb friction coefficient"),
+        "restitution": Field(1.0, number(0.0, 1.0, hi_open=False),
+                             "normal restitution coefficient of contacts; 1 = undamped"),
     },
     "plates": {
         "law": Field("linear", choice("linear", "hertz"),

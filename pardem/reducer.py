@@ -67,18 +67,25 @@ def young_and_poisson(eps, force, axis, cross_section):
 
 
 class Reducer:
-    """Samples the global plate forces and strain of a ``Simulation`` with one collective."""
+    """Samples the global plate forces, strain and bond damage of a ``Simulation`` with one
+    collective."""
 
     def __init__(self, comm, origin):
         self.comm = comm
         self.origin = np.asarray(origin, dtype=np.float64)
-        self._local = np.empty(25 + 2)
+        self._local = np.empty(25 + 2 + 3)
 
     def sample(self, sim):
-        """Dict with time, step, plate displacement, plate forces (fixed, moving), H and eps."""
-        e = sim.elements
+        """Dict with time, step, plate displacement, plate forces (fixed, moving), H and eps, and
+        the bond counts: ``bonds_broken`` (all broken so far), ``bonds_broken_step`` (broken in the
+        step just taken), ``bonds_yielded`` (densifying bonds with plastic strain > 0)."""
+        e, b = sim.elements, sim.bonds
         strain_sums(e.x, e.x0, e.flags, e.n_owned, self.origin, self._local[:25])
         self._local[25:27] = sim.plates.force_local
+        once = b.counted_once(e.n_owned)
+        self._local[27] = np.count_nonzero(~b.intact[once])
+        self._local[28] = sim.bonds_broken_step
+        self._local[29] = np.count_nonzero(b.plastic[once] > 0.0) if b.densify_p0 > 0.0 else 0
         g = self.comm.sum(self._local)
         H = gradient_from_sums(g[:25])
         return {
@@ -89,6 +96,9 @@ class Reducer:
             "force_moving": float(g[26]),
             "H": H,
             "eps": strain_tensor(H),
+            "bonds_broken": int(g[27]),
+            "bonds_broken_step": int(g[28]),
+            "bonds_yielded": int(g[29]),
         }
 
 

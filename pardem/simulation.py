@@ -77,12 +77,19 @@ class Simulation:
         self.viscous_damping = float(viscous_damping)
         self.contact_energy = 0.0
         self.stress = np.zeros((3, 3))  # Love-Weber stress of the contacts [Pa] (servo cells only)
+        self.bonds_broken_step = 0      # bonds broken by the last force call, counted on this rank
+        self.pairs_freed = False        # a bond broke since the last contact list build
 
     def compute_forces(self):
         """Forces and torques of the current configuration (after ``f``, ``t`` were zeroed)."""
         e, p = self.elements, self.plates
         if self.bonds is not None and self.bonds.n:
-            self.bond_energy = compute_bonds(self.bonds, e)
+            self.bond_energy, broken, counted = compute_bonds(self.bonds, e)
+            self.bonds_broken_step = counted
+            if broken:
+                # a bond held by two ranks breaks on both (identical inputs) and is counted on
+                # one; the freed pair must enter the contact list at the next step
+                self.pairs_freed = True
         if p is not None:
             # walls move at the velocity of the half step, the instant of the element velocities
             normals, offsets, velocities = p.planes(self.time + 0.5 * self.dt)
@@ -99,6 +106,7 @@ class Simulation:
         if self.cell is not None:
             self.cell.wrap(self.elements)
         self.contacts.rebuild(self.elements, self.bonds)
+        self.pairs_freed = False
 
     def _reference_positions(self):
         if self.domain is not None:
@@ -119,7 +127,7 @@ class Simulation:
         if self.domain is not None:
             self.domain.update(self)   # migration and ghosts, or the ghost refresh
             e = self.elements
-        elif self.contacts is not None and self.contacts.needs_rebuild(e):
+        elif self.contacts is not None and (self.pairs_freed or self.contacts.needs_rebuild(e)):
             self.rebuild_contacts()
         t2 = _time.perf_counter()
         self.compute_forces()

@@ -21,7 +21,11 @@ ELEMENT_FIELDS = ("x", "v", "w", "q", "radius", "mass", "inertia", "inv_mass", "
                   "x0", "gid", "flags", "wall_h")
 # Per-bond arrays that travel with a bond (i, j are rebuilt from the end gids).
 BOND_FIELDS = ("gid", "gid_i", "gid_j", "L0", "ka", "kb", "kt", "tau_a", "tau_b", "tau_t",
-               "u1", "p1", "u2", "p2", "young", "radius")
+               "u1", "p1", "u2", "p2", "young", "radius", "state", "f_tensile", "f_shear", "f_yield",
+               "plastic")
+
+# Bond states (``Bonds.state``).
+BOND_INTACT, BOND_BROKEN_TENSION, BOND_BROKEN_SHEAR = np.uint8(0), np.uint8(1), np.uint8(2)
 
 # Element flag bits.
 FLAG_NEAR_PLATE = np.uint8(1)   # touches a plate at the start: left out of the strain fit
@@ -119,7 +123,15 @@ class Bonds:
     u1, p1, u2, p2 : bond axis (1 -> 2) and a reference vector normal to it at creation,
         stored in the body frame of end 1 (u1, p1) and end 2 (u2, p2).
     young [Pa], radius [m] : the bond's modulus and radius, kept for output and diagnostics.
+    state : ``BOND_INTACT``, or how it broke (``BOND_BROKEN_TENSION``, ``BOND_BROKEN_SHEAR``); a
+        broken bond stays in the arrays (for output and checkpoints) and exerts nothing.
+    f_tensile, f_shear [N] : rupture thresholds on the axial tension ``F`` and the shear force
+        ``|T|`` (strength times section S; inf = unbreakable), PHYSICS.md section 7.
+    f_yield [N] : densification threshold ``sigma0 S`` in compression (0 = elastic bond);
+        plastic : its plastic (compressive) strain p >= 0.
     damped : False when every tau is zero (the force loop then skips the damping terms).
+    breakable : False when no bond can break (the loop then skips the rupture test);
+    densify_p0 : the densification factor p0 of section 7 (0 = no bond densifies).
     """
     i: np.ndarray
     j: np.ndarray
@@ -139,8 +151,30 @@ class Bonds:
     p2: np.ndarray
     young: np.ndarray
     radius: np.ndarray
+    state: np.ndarray = None
+    f_tensile: np.ndarray = None
+    f_shear: np.ndarray = None
+    f_yield: np.ndarray = None
+    plastic: np.ndarray = None
     damped: bool = True
+    breakable: bool = False
+    densify_p0: float = 0.0
     extra: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        # the inelastic fields default to an intact, unbreakable, elastic bond
+        for name, value in _inelastic_defaults(self.L0.shape[0]).items():
+            if getattr(self, name) is None:
+                setattr(self, name, value)
+
+    def flags(self):
+        """The per-run switches of the force loop (keyword arguments of ``unpack``)."""
+        return {"damped": self.damped, "breakable": self.breakable, "densify_p0": self.densify_p0}
+
+    @property
+    def intact(self):
+        """Mask of the bonds that still act."""
+        return self.state == BOND_INTACT
 
     @property
     def n(self) -> int:
@@ -151,25 +185,30 @@ class Bonds:
         return {k: getattr(self, k)[rows] for k in BOND_FIELDS}
 
     @classmethod
-    def unpack(cls, parts, damped, copy=True):
+    def unpack(cls, parts, damped, copy=True, breakable=False, densify_p0=0.0):
         """Bonds from ``pack`` dicts, duplicates (same gid) dropped, ordered by (gid_i, gid_j).
 
         ``i, j`` are left at -1: call ``relink`` next. ``copy=False`` adopts the arrays of a
-        single part when they are already unique and ordered.
+        single part when they are already unique and ordered. Parts without the inelastic fields
+        (checkpoints written before rupture existed) get intact elastic bonds.
         """
+        n_parts = [len(p["gid"]) for p in parts]
+        parts = [{**_inelastic_defaults(n), **p} for p, n in zip(parts, n_parts)]
         data = _join(parts, BOND_FIELDS, copy)
         _, first = np.unique(data["gid"], return_index=True)
         keep = first[np.lexsort((data["gid_j"][first], data["gid_i"][first]))]
         if len(keep) != len(data["gid"]) or np.any(keep != np.arange(len(keep))):
             data = {k: v[keep] for k, v in data.items()}
         n = len(keep)
-        return cls(i=np.full(n, -1, np.int32), j=np.full(n, -1, np.int32), damped=damped, **data)
+        return cls(i=np.full(n, -1, np.int32), j=np.full(n, -1, np.int32), damped=damped,
+                   breakable=bool(breakable), densify_p0=float(densify_p0), **data)
 
     @classmethod
     def empty(cls):
         """No bonds (contact-only runs)."""
         parts = {k: np.zeros((0, 3) if k in ("u1", "p1", "u2", "p2") else 0,
-                             dtype=np.int64 if k.startswith("gid") else np.float64) for k in BOND_FIELDS}
+                             dtype=np.int64 if k.startswith("gid") else np.uint8 if k == "state"
+                             else np.float64) for k in BOND_FIELDS}
         return cls.unpack([parts], damped=False)
 
     def counted_once(self, n_owned):
@@ -197,7 +236,14 @@ class Bonds:
             out[:] = order[pos_c]
 
     def nbytes(self) -> int:
-        return sum(getattr(self, f.name).nbytes for f in fields(self) if f.name not in ("extra", "damped"))
+        return sum(getattr(self, f.name).nbytes for f in fields(self)
+                   if isinstance(getattr(self, f.name), np.ndarray))
+
+
+def _inelastic_defaults(n):
+    """Inelastic fields of ``n`` intact, unbreakable, elastic bonds."""
+    return {"state": np.zeros(n, np.uint8), "f_tensile": np.full(n, np.inf),
+            "f_shear": np.full(n, np.inf), "f_yield": np.zeros(n), "plastic": np.zeros(n)}
 
 
 

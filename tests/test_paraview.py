@@ -27,7 +27,7 @@ MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 R = 0.5e-3
 YOUNG, RATIO = 2e8, 0.6
 POINT_NAMES = {"radius", "velocity", "displacement", "rank", "gid", "vtkGhostType"}
-CELL_NAMES = {"axial_force", "state", "young"}
+CELL_NAMES = {"axial_force", "state", "plastic", "young"}
 
 
 # ---------------------------------------------------------------------------- helpers

@@ -12,7 +12,7 @@ import pytest
 
 from pardem.parallel.communicator import Communicator
 from pardem.reducer import Reducer, gradient_from_sums, strain_sums, strain_tensor, young_and_poisson
-from pardem.state import FLAG_NEAR_PLATE, Elements, Plates
+from pardem.state import FLAG_NEAR_PLATE, Bonds, Elements, Plates
 from _util import FakeComm
 
 
@@ -113,13 +113,15 @@ def test_reducer_sample(affine, comm):
     plates = Plates.pair(0, -0.001, 0.011, 0.1, 1e5)
     plates.positions[1] -= 2e-4           # the moving plate has travelled 0.2 mm
     plates.force_local[:] = [3.5, 3.25]
-    sim = SimpleNamespace(elements=e, plates=plates, time=0.002, step_count=7)
+    sim = SimpleNamespace(elements=e, plates=plates, time=0.002, step_count=7, bonds=Bonds.empty(),
+                          bonds_broken_step=0)
     out = Reducer(comm, origin=x0.mean(axis=0)).sample(sim)
     np.testing.assert_allclose(out["H"], H, rtol=0, atol=1e-12 * np.abs(H).max())
     np.testing.assert_allclose(out["eps"], 0.5 * (H + H.T), rtol=0, atol=1e-12 * np.abs(H).max())
     assert out["force_fixed"] == 3.5 and out["force_moving"] == 3.25
     assert out["plate_displacement"] == pytest.approx(2e-4, rel=1e-12)
     assert out["time"] == 0.002 and out["step"] == 7
+    assert out["bonds_broken"] == out["bonds_broken_step"] == out["bonds_yielded"] == 0
 
 
 def test_young_and_poisson():

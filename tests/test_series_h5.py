@@ -23,7 +23,8 @@ def synthetic_samples(n, seed=0, step0=0):
         out.append({"time": (step0 + k) * 1.2345678901234567e-7, "step": step0 + 7 * k,
                     "plate_displacement": np.float64(rng.uniform() * 1e-5),
                     "force_fixed": float(rng.normal() * 1e3), "force_moving": float(rng.normal() * 1e-9),
-                    "H": H, "eps": 0.5 * (H + H.T)})
+                    "H": H, "eps": 0.5 * (H + H.T), "bonds_broken": int(rng.integers(0, 10**9)),
+                    "bonds_broken_step": int(rng.integers(0, 100)), "bonds_yielded": int(rng.integers(0, 10**6))})
     return out
 
 
@@ -53,7 +54,7 @@ def test_round_trip_matches_csv(tmp_path):
             ds = f[name]
             assert ds.ndim == 1 and ds.maxshape == (None,) and ds.shape == (len(samples),)
             assert ds.attrs["units"] == unit
-            assert ds.dtype == (np.int64 if name == "step" else np.float64)
+            assert ds.dtype == (np.int64 if name == "step" or name.startswith("bonds_") else np.float64)
 
 
 def test_empty_file_and_context_manager(tmp_path):
@@ -95,7 +96,8 @@ def test_rows_survive_a_crash(tmp_path):
         for k in range(4):
             H = np.full((3, 3), 1e-4 * k)
             w.append({{"time": 0.5 * k, "step": k, "plate_displacement": 1e-6 * k, "force_fixed": 2.0 * k,
-                       "force_moving": 3.0 * k, "H": H, "eps": H}})
+                       "force_moving": 3.0 * k, "H": H, "eps": H, "bonds_broken": k,
+                       "bonds_broken_step": 1, "bonds_yielded": 0}})
         os._exit(9)
     """)
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
@@ -145,7 +147,8 @@ def test_plot_from_h5_only_and_out_option(run_dir, tmp_path):
         xx, yy, zz, xy, xz, yz = (csv[c][k] for c in eps_cols)
         eps = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
         samples.append({"step": int(csv["step"][k]), "time": csv["time"][k], "eps": eps, "H": eps,
-                        **{c: csv[c][k] for c in ("plate_displacement", "force_fixed", "force_moving")}})
+                        **{c: csv[c][k] for c in ("plate_displacement", "force_fixed", "force_moving")},
+                        **{c: int(csv[c][k]) for c in ("bonds_broken", "bonds_broken_step", "bonds_yielded")}})
     SeriesH5(d / "series.h5", samples=samples).close()
     out = tmp_path / "other.png"
     assert plot.main([str(d), "--out", str(out)]) == 0

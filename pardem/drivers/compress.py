@@ -162,6 +162,10 @@ def _run(comm, args, files):
         if np.isfinite(case.analytic_young):
             line += (f";  analytic pi/4 E r^2 = {case.analytic_young / 1e6:.3f} MPa "
                      f"({100 * (E / case.analytic_young - 1):+.2f} %)")
+        if sim.bonds.breakable or sim.bonds.densify_p0 > 0.0:
+            nus += (f"\npeak stress {result['peak_stress'] / 1e6:.4g} MPa at strain "
+                    f"{result['strain_at_peak']:.4g}; bonds broken {result['bonds_broken']} of {n_bonds}, "
+                    f"yielded {result['bonds_yielded']}")
         if summary["domain"]:
             d = summary["domain"]
             nus += (f"\ncompact domain: solid fraction {d['solid_fraction']:.4f}, coordination "

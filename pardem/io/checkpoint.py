@@ -40,7 +40,11 @@ LAYOUT_VERSION = 1
 ELEMENT_DATASETS = ("x", "v", "w", "q", "f", "t", "radius", "mass", "inertia", "x0", "x_build",
                     "gid", "flags")
 BOND_DATASETS = ("gid", "gid_i", "gid_j", "L0", "ka", "kb", "kt", "tau_a", "tau_b", "tau_t",
-                 "u1", "p1", "u2", "p2", "young", "radius")
+                 "u1", "p1", "u2", "p2", "young", "radius", "state", "f_tensile", "f_shear", "f_yield",
+                 "plastic")
+# Bond datasets that checkpoints written before rupture and densification existed lack (their bonds
+# are read back intact, unbreakable and elastic).
+BOND_OPTIONAL = ("state", "f_tensile", "f_shear", "f_yield", "plastic")
 CONTACT_DATASETS = ("gid_i", "gid_j", "shifts", "history")
 _CHUNK = 1 << 20   # rows read at once when selecting rows
 
@@ -192,6 +196,8 @@ def inspect(path):
                 groups.append(("contacts", CONTACT_DATASETS, int(np.sum(attrs["contacts_counts"]))))
             for gname, names, n in groups:
                 for name in names:
+                    if gname == "bonds" and name in BOND_OPTIONAL and f"{gname}/{name}" not in f:
+                        continue
                     if f"{gname}/{name}" not in f:
                         raise CheckpointError(f"--restart {path}: dataset /{gname}/{name} is missing")
                     if f[gname][name].shape[0] != n:
@@ -213,6 +219,12 @@ def has_dataset(path, name):
     """True when the checkpoint holds dataset ``name`` (e.g. the optional ``elements/wall_h``)."""
     with h5py.File(path, "r") as f:
         return name in f
+
+
+def bond_datasets(path):
+    """The bond datasets held by checkpoint ``path`` (``BOND_DATASETS`` less missing optional ones)."""
+    with h5py.File(path, "r") as f:
+        return [n for n in BOND_DATASETS if n not in BOND_OPTIONAL or f"bonds/{n}" in f]
 
 
 def read_rows(path, group, names, select):

@@ -26,9 +26,11 @@ Contents of a piece (SI units):
   half-step value: the owner's piece holds the end-of-step one;
 * cells: one ``line`` per bond counted once on this rank (those whose first end, the lower gid,
   it owns: ``bonds.i < n_owned``), from the lower-gid end to the higher;
-* cell data: ``axial_force`` = ``ka (L - L0)`` [N], positive in tension, ``L`` the current
-  distance between the ends [m] (elastic axial force, without damping); ``state`` (int32:
-  0 intact; bonds do not break yet, the array is there for rupture); ``young`` [Pa].
+* cell data: ``axial_force`` = ``ka (L - L0 (1 - p))`` [N], positive in tension, ``L`` the current
+  distance between the ends [m], ``p`` the plastic strain (elastic axial force, without damping;
+  0 for a broken bond); ``state`` (int32: 0 intact, 1 broken in tension, 2 broken in shear: a
+  broken bond stays drawn, filter it with Threshold on ``state``); ``plastic`` (the densification
+  strain p); ``young`` [Pa].
 
 Every bond appears in exactly one piece and every element is owned in exactly one piece, so the
 union of the pieces of a snapshot is the whole system, whatever the number of ranks.
@@ -50,18 +52,20 @@ import sys
 import meshio
 import numpy as np
 
+from pardem.state import BOND_INTACT
+
 PVD_NAME = "pardem.pvd"
 
 # (name, dtype, components) of the point and cell arrays; the .pvtu declares exactly these
 POINT_ARRAYS = (("radius", np.float64, 1), ("velocity", np.float64, 3),
                 ("displacement", np.float64, 3), ("rank", np.int32, 1), ("gid", np.int64, 1),
                 ("vtkGhostType", np.uint8, 1))
-CELL_ARRAYS = (("axial_force", np.float64, 1), ("state", np.int32, 1), ("young", np.float64, 1))
+CELL_ARRAYS = (("axial_force", np.float64, 1), ("state", np.int32, 1), ("plastic", np.float64, 1),
+               ("young", np.float64, 1))
 POINTS_DTYPE = np.float64
 
 GHOST_OWNED = np.uint8(0)
 GHOST_DUPLICATE = np.uint8(1)   # vtkDataSetAttributes::DUPLICATEPOINT
-BOND_INTACT = 0
 
 _VTK_TYPES = {np.dtype(np.float64): "Float64", np.dtype(np.float32): "Float32",
               np.dtype(np.int64): "Int64", np.dtype(np.int32): "Int32", np.dtype(np.uint8): "UInt8"}
@@ -99,9 +103,12 @@ def piece_mesh(elements, bonds, rank):
         "vtkGhostType": ghost_type,
     }
     L = np.linalg.norm(e.x[bj] - e.x[bi], axis=1)
+    state = b.state[once]
     cell_data = {
-        "axial_force": b.ka[once] * (L - b.L0[once]),
-        "state": np.full(len(bi), BOND_INTACT),
+        "axial_force": np.where(state == BOND_INTACT,
+                                b.ka[once] * (L - b.L0[once] * (1.0 - b.plastic[once])), 0.0),
+        "state": state,
+        "plastic": b.plastic[once],
         "young": b.young[once],
     }
     point_data = {k: np.ascontiguousarray(point_data[k], dtype=t).reshape(-1, c) if c > 1

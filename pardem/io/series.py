@@ -2,15 +2,17 @@
 import csv
 
 SERIES_COLUMNS = ("step", "time", "plate_displacement", "force_fixed", "force_moving",
-                  "eps_xx", "eps_yy", "eps_zz", "eps_xy", "eps_xz", "eps_yz")
-SERIES_UNITS = ("1", "s", "m", "N", "N", "1", "1", "1", "1", "1", "1")
+                  "eps_xx", "eps_yy", "eps_zz", "eps_xy", "eps_xz", "eps_yz",
+                  "bonds_broken", "bonds_broken_step", "bonds_yielded")
+SERIES_UNITS = ("1", "s", "m", "N", "N", "1", "1", "1", "1", "1", "1", "1", "1", "1")
 
 
 def sample_row(s):
     """The CSV row of one ``Reducer.sample`` dict."""
     e = s["eps"]
     return (s["step"], s["time"], s["plate_displacement"], s["force_fixed"], s["force_moving"],
-            e[0, 0], e[1, 1], e[2, 2], e[0, 1], e[0, 2], e[1, 2])
+            e[0, 0], e[1, 1], e[2, 2], e[0, 1], e[0, 2], e[1, 2],
+            s["bonds_broken"], s["bonds_broken_step"], s["bonds_yielded"])
 
 
 class SeriesCSV:

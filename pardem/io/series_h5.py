@@ -21,7 +21,7 @@ CHUNK_ROWS = 1024
 
 
 def _dtype(column):
-    return np.int64 if column == "step" else np.float64
+    return np.int64 if column == "step" or column.startswith("bonds_") else np.float64
 
 
 class SeriesH5:

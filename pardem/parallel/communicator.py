@@ -36,6 +36,15 @@ class Communicator:
         self.comm.Allreduce(a, out, op=self._MPI.SUM)
         return out
 
+    def max_array(self, values):
+        """Element-wise maximum over ranks of a float64 array; same result on every rank."""
+        a = np.array(values, dtype=np.float64)
+        if self.size == 1:
+            return a
+        out = np.empty_like(a)
+        self.comm.Allreduce(a, out, op=self._MPI.MAX)
+        return out
+
     def min(self, value):
         return self.comm.allreduce(value, op=self._MPI.MIN) if self.size > 1 else value
 

@@ -191,7 +191,7 @@ class SlabComm:
         mine = np.isin(cur_bonds["gid_i"], cur["gid"]) | np.isin(cur_bonds["gid_j"], cur["gid"])
         if table is not None:
             table = _select(table, np.isin(table["gid_i"], cur["gid"]) | np.isin(table["gid_j"], cur["gid"]))
-        return (Elements.unpack([cur], len(cur["gid"])), Bonds.unpack([_select(cur_bonds, mine)], bonds.damped),
+        return (Elements.unpack([cur], len(cur["gid"])), Bonds.unpack([_select(cur_bonds, mine)], **bonds.flags()),
                 table)
 
     def _swap(self, out, tag):
@@ -293,12 +293,13 @@ class SlabComm:
         # a blown-up rank reports an infinite displacement: every rank then stops together here,
         # instead of trying to rebuild ghost layers around NaN positions
         moved = np.inf if sim.unstable else max_displacement2(e.x, self.x_build, e.n_owned)
-        moved = self.comm.max(moved)
+        contacts = sim.contacts
+        # a broken bond (on any rank) frees a pair for the contact list: rebuild it now
+        moved, freed = self.comm.max_array([moved, contacts is not None and sim.pairs_freed])
         if not np.isfinite(moved):
             sim.check_stability(force=True)
-        contacts = sim.contacts
         used = contacts.budget_used(moved) if contacts is not None else moved > (0.5 * self.skin) ** 2
-        if rebalance or used:
+        if rebalance or used or freed:
             if self.cell is not None:
                 self.cell.wrap(e)
             if rebalance:
@@ -309,6 +310,7 @@ class SlabComm:
                 else:
                     sim.elements, sim.bonds, table = self.setup_with_pairs(e, sim.bonds, contacts.table())
                     contacts.rebuild(sim.elements, sim.bonds, table)
+                    sim.pairs_freed = False
             except BondOutOfReach as err:
                 # during a run a bond stretched by a quarter of its length means the motion blew up
                 raise InstabilityError(f"at step {sim.step_count}: {err}") from None

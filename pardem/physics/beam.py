@@ -54,12 +54,37 @@ def _carry_twist_ref(ax, ay, az, nx, ny, nz, rx, ry, rz):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1, u2, p2, out,
-              damped):
-    """Force on end 1 and moments on ends 1 and 2 of bond ``b``; writes ``out`` [9] = (F1, M1, M2).
+def densified_extension(dL, l0, ka, f_yield, p0, plastic, b):
+    """Elastic extension [m] of a densifying bond (PHYSICS.md section 7); updates ``plastic[b]``.
 
-    ``damped`` must be a compile-time constant at the call site (True or False literal): the
-    undamped loop then carries no trace of the damping terms.
+    The plastic strain p >= 0 shortens the rest length to ``L0 (1 - p)``, so the trial axial force
+    is ``F = ka (dL + L0 p)`` (tension positive, ``ka = E S / L0``). In compression, if the trial
+    magnitude reaches the threshold ``Fy(p) = f_yield exp(p / p0)``, one Newton step on
+    ``g(p) = -ka (dL + L0 p) - Fy(p)`` updates p and the force is set to ``-Fy(p)``; otherwise the
+    bond is elastic (unloading follows ``ka`` at fixed p). Tension is always elastic.
+    """
+    p = plastic[b]
+    ext = dL + l0 * p
+    fy = f_yield * np.exp(p / p0)
+    if -ka * ext >= fy:
+        g = -ka * ext - fy
+        dg = -ka * l0 - fy / p0
+        p -= g / dg
+        plastic[b] = p
+        ext = -f_yield * np.exp(p / p0) / ka
+    return ext
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1, u2, p2, out,
+              damped, densify=False, f_yield=None, plastic=None, p0=0.0):
+    """Force on end 1 and moments on ends 1 and 2 of bond ``b``; writes ``out`` [9] = (F1, M1, M2)
+    and, for the rupture test, ``out[9]`` = axial force (tension positive) and ``out[10]`` = shear
+    force magnitude [N] (both including damping).
+
+    ``damped`` and ``densify`` must be compile-time constants at the call site (True or False
+    literals): a loop without them carries no trace of their terms. With ``densify``, a bond with
+    ``f_yield[b] > 0`` yields in compression and updates ``plastic[b]`` (``densified_extension``).
     Returns the elastic energy of the bond [J] (damping excluded).
     """
     dx0 = x[j, 0] - x[i, 0]
@@ -111,6 +136,9 @@ def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1
 
     l0 = L0[b]
     dL = L - l0
+    if densify:
+        if f_yield[b] > 0.0:
+            dL = densified_extension(dL, l0, ka[b], f_yield[b], p0, plastic, b)
     kbL = 2.0 * kb[b] / l0
     energy = 0.5 * ka[b] * dL * dL + 0.5 * kt[b] * tw * tw + kbL * (
         t10 * t10 + t11 * t11 + t12 * t12 + t10 * t20 + t11 * t21 + t12 * t22
@@ -152,6 +180,8 @@ def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1
     out[0] = fa * n0 + fs * (n1 * g2 - n2 * g1)
     out[1] = fa * n1 + fs * (n2 * g0 - n0 * g2)
     out[2] = fa * n2 + fs * (n0 * g1 - n1 * g0)
+    out[9] = fa
+    out[10] = fs * np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)   # th_k are normal to n: |n x g| = |g|
     mt = kt[b] * tw
     out[3] = mt * n0 - kbL * (2.0 * t10 + t20)
     out[4] = mt * n1 - kbL * (2.0 * t11 + t21)
@@ -162,34 +192,74 @@ def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1
     return energy
 
 
-def _bond_loop(damped):
-    """The loop over all bonds with damping compiled in or out (``damped`` is frozen as a constant)."""
+def _bond_loop(damped, breakable, densify):
+    """The loop over all bonds with damping, rupture and densification compiled in or out (the
+    flags are frozen as constants)."""
     @njit(cache=True, error_model="numpy")
-    def loop(bi, bj, x, v, w, rot, f, t, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1, u2, p2):
-        out = np.empty(9)
+    def loop(bi, bj, x, v, w, rot, f, t, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1, u2, p2,
+             state, f_tensile, f_shear, f_yield, plastic, p0, n_owned):
+        out = np.empty(11)
         energy = 0.0
+        broken = 0
+        counted = 0
         for b in range(bi.shape[0]):
+            if breakable:
+                if state[b] != 0:
+                    continue
             i = bi[b]
             j = bj[b]
-            energy += beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t,
-                                u1, p1, u2, p2, out, damped)
+            e = beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t,
+                          u1, p1, u2, p2, out, damped, densify, f_yield, plastic, p0)
+            if breakable:
+                mode = rupture_mode(out[9], out[10], f_tensile[b], f_shear[b])
+                if mode != 0:
+                    # a broken bond stops acting at once: its force of this step is not applied
+                    state[b] = mode
+                    broken += 1
+                    if i < n_owned:
+                        counted += 1
+                    continue
+            energy += e
             scatter_pair(i, j, f, t, out)
-        return energy
+        return energy, broken, counted
     return loop
 
 
-# Add the forces and moments of all bonds to f and t (rows may be owned or ghost); return the total
-# elastic energy of the bonds [J]. The elastic loop is for bonds whose tau are all zero.
-beam_forces = _bond_loop(True)
-beam_forces_elastic = _bond_loop(False)
+@njit(cache=True, inline="always")
+def rupture_mode(axial, shear, f_tensile, f_shear):
+    """0 if the bond holds, 1 if its tension ``axial`` [N] exceeds ``f_tensile``, 2 if its shear
+    force ``shear`` [N] exceeds ``f_shear`` (tension is tested first)."""
+    if axial > f_tensile:
+        return 1
+    if shear > f_shear:
+        return 2
+    return 0
+
+
+# One compiled loop per combination of (damped, breakable, densify), built on first use.
+_LOOPS = {}
+
+
+def bond_loop(damped, breakable, densify):
+    """The bond force loop for these switches: adds the forces and moments of all intact bonds to
+    f and t (rows owned or ghost) and returns (elastic energy [J], bonds broken in this call, those
+    of them whose first end is owned)."""
+    key = (bool(damped), bool(breakable), bool(densify))
+    if key not in _LOOPS:
+        _LOOPS[key] = _bond_loop(*key)
+    return _LOOPS[key]
 
 
 def compute_bonds(bonds, elements):
-    """Add all bond forces of ``bonds`` to ``elements.f``/``elements.t``; returns elastic energy [J].
+    """Add all bond forces of ``bonds`` to ``elements.f``/``elements.t``.
 
-    The undamped loop is chosen here, once per call, when no bond has damping.
+    Returns (elastic energy [J], number of bonds that broke in this call, how many of them this
+    rank counts: those whose first end it owns). Damping, rupture and densification are compiled out of the loop when
+    no bond uses them.
     """
     b, e = bonds, elements
-    kernel = beam_forces if b.damped else beam_forces_elastic
+    densify = b.densify_p0 > 0.0
+    kernel = bond_loop(b.damped, b.breakable, densify)
     return kernel(b.i, b.j, e.x, e.v, e.w, e.rot, e.f, e.t, b.L0, b.ka, b.kb, b.kt,
-                  b.tau_a, b.tau_b, b.tau_t, b.u1, b.p1, b.u2, b.p2)
+                  b.tau_a, b.tau_b, b.tau_t, b.u1, b.p1, b.u2, b.p2, b.state, b.f_tensile,
+                  b.f_shear, b.f_yield, b.plastic, b.densify_p0 if densify else 1.0, e.n_owned)

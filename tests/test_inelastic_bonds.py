@@ -1,0 +1,160 @@
+"""Inelastic beam bonds (PHYSICS.md section 7): densification of the bonds along T and rupture.
+
+Single bonds driven kinematically (positions prescribed, the kernel called once per increment, as
+the engine does once per step) are compared with the analytic laws:
+
+* densification: under monotonic compression the force follows the implicit curve
+  ``ka L0 (eps - p) = sigma0 S exp(p / p0)`` (solved here by bisection, independently of the
+  kernel's one Newton step per call); unloading is elastic with slope ``ka`` at fixed ``p``;
+* rupture: the bond breaks in the first call where its tension ``ka dL`` exceeds ``sigma S`` (or
+  its shear force exceeds ``tau S``), exerts nothing from that call on, and stays broken.
+"""
+import numpy as np
+import pytest
+
+from pardem.bonding import BeamMaterial, make_bonds
+from pardem.physics.anisotropy import lrt_frame
+from pardem.physics.beam import compute_bonds
+from pardem.state import BOND_BROKEN_SHEAR, BOND_BROKEN_TENSION, BOND_INTACT, Elements
+
+R = 1e-3
+E = 1e9
+
+
+def bond_along(axis, **strengths):
+    """Two touching spheres along ``axis`` (0, 1, 2 = L, R, T) joined by one bond."""
+    n = np.zeros(3)
+    n[axis] = 1.0
+    e = Elements.from_spheres(np.array([np.zeros(3), 2 * R * n]), R, 1000.0)
+    mat = BeamMaterial(young=E, radius_ratio=0.5, poisson=0.3, damping=0.0, **strengths)
+    return e, make_bonds(e, np.array([[0, 1]]), mat, lrt_frame(0.0)), n
+
+
+def axial_force(e, b, n):
+    """Force on end 1 along the bond [N], tension positive, from one kernel call."""
+    e.f[:] = 0.0
+    e.t[:] = 0.0
+    compute_bonds(b, e)
+    return float(e.f[0] @ n)
+
+
+def plastic_curve(eps, ka, L0, fy0, p0):
+    """Exact force magnitude on the loading curve at compressive strain ``eps`` (bisection)."""
+    if ka * L0 * eps <= fy0:
+        return ka * L0 * eps, 0.0
+    lo, hi = 0.0, eps
+    for _ in range(200):
+        p = 0.5 * (lo + hi)
+        if ka * L0 * (eps - p) > fy0 * np.exp(p / p0):
+            lo = p
+        else:
+            hi = p
+    p = 0.5 * (lo + hi)
+    return fy0 * np.exp(p / p0), p
+
+
+def test_densification_follows_the_analytic_curve_and_unloads_elastically():
+    sigma0, p0 = 2e6, 0.05
+    e, b, n = bond_along(2, densification_stress=sigma0, densification_p0=p0)
+    ka, L0 = float(b.ka[0]), float(b.L0[0])
+    S = np.pi * (0.5 * R) ** 2
+    fy0 = sigma0 * S
+    assert b.f_yield[0] == pytest.approx(fy0, rel=1e-12)
+    eps_y = fy0 / (ka * L0)
+    # a quasi-static compression to 40 yield strains in 4000 increments (a run takes many more)
+    strains = np.linspace(0.0, 40 * eps_y, 4001)[1:]
+    worst = 0.0
+    for eps in strains:
+        e.x[1] = (1.0 - eps) * L0 * n
+        F = -axial_force(e, b, n)
+        exact, p_exact = plastic_curve(eps, ka, L0, fy0, p0)
+        worst = max(worst, abs(F - exact) / exact)
+    assert worst < 0.005, f"largest deviation from the loading curve {worst:.2e}"
+    p_end = float(b.plastic[0])
+    assert p_end == pytest.approx(p_exact, rel=0.005) and p_end > 0.5 * p0
+    F_top = -axial_force(e, b, n)
+    # unloading: elastic at fixed p, down to zero force at the shortened rest length, then tension
+    for d_eps in (0.1 * eps_y, 0.5 * eps_y, F_top / (ka * L0), F_top / (ka * L0) + eps_y):
+        e.x[1] = (1.0 - strains[-1] + d_eps) * L0 * n
+        F = -axial_force(e, b, n)
+        assert F == pytest.approx(F_top - ka * L0 * d_eps, abs=1e-9 * F_top)
+        assert b.plastic[0] == p_end
+    # reloading stays elastic until the current threshold, then flows again
+    e.x[1] = (1.0 - strains[-1] - 0.5 * eps_y) * L0 * n
+    axial_force(e, b, n)
+    assert b.plastic[0] > p_end
+
+
+def test_only_the_bonds_along_T_densify():
+    for axis in (0, 1):
+        e, b, n = bond_along(axis, densification_stress=2e6, densification_p0=0.05)
+        assert b.f_yield[0] == 0.0
+        ka, L0 = float(b.ka[0]), float(b.L0[0])
+        e.x[1] = (1.0 - 0.2) * L0 * n        # far beyond the T bond's yield strain
+        assert -axial_force(e, b, n) == pytest.approx(ka * L0 * 0.2, rel=1e-9)
+        assert b.plastic[0] == 0.0
+
+
+@pytest.mark.parametrize("axis, strengths", [(0, (3e6, 1e6, 2e6)), (1, (3e6, 1e6, 2e6)), (2, 1.5e6)])
+def test_tension_breaks_at_the_threshold(axis, strengths):
+    e, b, n = bond_along(axis, tensile_strength=strengths)
+    sigma = strengths[axis] if np.ndim(strengths) else strengths
+    ka, L0 = float(b.ka[0]), float(b.L0[0])
+    S = np.pi * (0.5 * R) ** 2
+    stretch_at_break = sigma * S / ka
+    steps = np.linspace(0.0, 2.0, 2001)[1:] * stretch_at_break
+    broke_at = None
+    for k, dL in enumerate(steps):
+        e.x[1] = (L0 + dL) * n
+        F = axial_force(e, b, n)
+        if b.state[0] != BOND_INTACT:
+            broke_at = dL
+            assert F == 0.0 and b.state[0] == BOND_BROKEN_TENSION
+            break
+        assert F == pytest.approx(ka * dL, rel=1e-9)
+    assert broke_at == pytest.approx(stretch_at_break, rel=2e-3)
+    e.x[1] = L0 * n                          # back to the rest length: still broken, no force
+    assert axial_force(e, b, n) == 0.0 and b.state[0] == BOND_BROKEN_TENSION
+    assert np.all(e.t == 0.0)
+
+
+def test_shear_breaks_at_the_threshold_and_compression_does_not_break():
+    tau = 5e5
+    e, b, n = bond_along(0, tensile_strength=1e7, shear_strength=tau)
+    L0 = float(b.L0[0])
+    S = np.pi * (0.5 * R) ** 2
+    I = np.pi * (0.5 * R) ** 4 / 4
+    # a transverse offset with both ends clamped: shear force 12 E I d / L^3 (textbook beam)
+    k_shear = 12 * E * I / L0**3
+    d_break = tau * S / k_shear
+    e.x[1] = 0.95 * L0 * n                   # compression alone never breaks a bond
+    axial_force(e, b, n)
+    assert b.state[0] == BOND_INTACT
+    broke_at = None
+    for d in np.linspace(0.0, 2.0, 2001)[1:] * d_break:
+        e.x[1] = L0 * n + np.array([0.0, d, 0.0])
+        e.f[:] = 0.0
+        e.t[:] = 0.0
+        compute_bonds(b, e)
+        if b.state[0] != BOND_INTACT:
+            broke_at = d
+            break
+        c = e.x[1] / np.linalg.norm(e.x[1])          # the chord
+        shear = np.linalg.norm(e.f[0] - (e.f[0] @ c) * c)
+    assert b.state[0] == BOND_BROKEN_SHEAR
+    # the chord turns slightly with the offset, so compare with the textbook law to its order
+    assert broke_at == pytest.approx(d_break, rel=5e-3)
+    assert shear <= tau * S
+
+
+def test_broken_count_is_returned_and_unbreakable_bonds_compile_without_the_test():
+    e, b, n = bond_along(0)
+    assert not b.breakable and np.isinf(b.f_tensile[0])
+    e.x[1] = 3 * R * n                       # 50 % stretch: nothing breaks without a strength
+    energy, broken, counted = compute_bonds(b, e)
+    assert broken == counted == 0 and energy > 0
+    e, b, n = bond_along(0, tensile_strength=1e3)
+    e.x[1] = 2.2 * R * n
+    energy, broken, counted = compute_bonds(b, e)
+    assert (broken, counted) == (1, 1) and energy == 0.0
+    assert compute_bonds(b, e)[1:] == (0, 0)      # counted once, when it breaks
