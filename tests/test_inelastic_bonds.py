@@ -158,3 +158,55 @@ def test_broken_count_is_returned_and_unbreakable_bonds_compile_without_the_test
     energy, broken, counted = compute_bonds(b, e)
     assert (broken, counted) == (1, 1) and energy == 0.0
     assert compute_bonds(b, e)[1:] == (0, 0)      # counted once, when it breaks
+
+
+# -- in the engine ---------------------------------------------------------------------------------
+
+DENSIFY = ["--set", "domain.box=[0.0055, 0.0055, 0.0055]", "--set", "domain.radius=0.25e-3",
+           "--set", "loading.axis=z", "--set", "loading.strain=0.02",
+           "--set", "bonds.densification_stress=3e5", "--set", "bonds.densification_p0=0.01",
+           "--set", "parallel.slab_axis=z", "--set", "checkpoint.at_end=true"]
+
+
+@pytest.mark.mpi
+def test_lattice_densifies_along_T_like_its_bonds_on_one_and_two_ranks(tmp_path):
+    """An ordered cube compressed along T: every T bond carries the plate stress times (2R)^2, so
+    the domain follows the single-bond curve, sigma^D = (S / 4R^2) sigma(eps). The slabs are cut
+    along the load, so elements cross them and their bonds' plastic strains migrate."""
+    import json
+    import shutil
+    import subprocess
+    import sys
+
+    import h5py
+
+    from pardem.io.series import read_series
+    mpiexec = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
+    Rb, E, s0, p0 = 0.25e-3, 100e6, 3e5, 0.01
+    states = {}
+    for n in (1, 2):
+        out = tmp_path / f"n{n}"
+        cmd = ([mpiexec, "-n", str(n)] if n > 1 else []) + [
+            sys.executable, "-m", "pardem.drivers.compress", "--quiet", *DENSIFY, "--out", str(out)]
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+        assert p.returncode == 0, p.stderr
+        s = json.loads((out / "summary.json").read_text())
+        series = read_series(out / "series.csv")
+        eps = -np.array(series["eps_zz"])
+        stress = np.array(series["force_fixed"]) / s["cross_section"]
+        late = eps > 3 * s0 / E                      # flowing, past the yield transient
+        S = np.pi * Rb**2
+        want = np.array([plastic_curve(x, E * S / (2 * Rb), 2 * Rb, s0 * S, p0)[0] for x in eps[late]])
+        want /= 4 * Rb**2
+        assert np.abs(stress[late] / want - 1).max() < 0.02
+        with h5py.File(s["checkpoints"][-1], "r") as f:
+            o = np.argsort(f["bonds/gid"][...])
+            states[n] = {k: f["bonds"][k][...][o] for k in ("plastic", "gid_i", "gid_j")}
+            x = f["elements/x"][...]
+            g = f["elements/gid"][...]
+            states[n]["x"] = x[np.argsort(g)]
+        plastic = states[n]["plastic"]
+        assert s["bonds_yielded"] == np.count_nonzero(plastic) == 11 * 11 * 10
+        assert np.all(plastic[plastic > 0] > 0.5 * p0)
+    assert np.abs(states[1]["x"] - states[2]["x"]).max() <= 1e-8 * np.abs(states[1]["x"]).max()
+    np.testing.assert_allclose(states[1]["plastic"], states[2]["plastic"], rtol=1e-8, atol=1e-14)

@@ -1,0 +1,256 @@
+"""Calibration of the beam bonds from target domain properties. PHYSICS.md sections 1 and 6.
+
+Pure arithmetic (no MPI, no files): target moduli, density and strengths of the represented
+continuum in, bond parameters of the ordered cubic lattice out. Per direction k in (L, R, T), with
+``E_k^D`` the target Young's modulus along k and ``G^D`` the target shear modulus [Pa]::
+
+    r_k^2  = (4/3) G^D / E_k^D                 (adimensional bond radius, r = r_k * element radius)
+    E_k^mu = (4/pi) E_k^D / r_k^2              (bond Young's modulus)
+    sigma_k^mu = 4 / (pi r_k^2) * sigma_k^D    (every stress threshold: tension, shear, densification)
+    rho_e = (6/pi) rho_D                       (element density, ordered lattice of touching spheres)
+
+The first two lines solve ``E_k^mu r_k^2 = (4/pi) E_k^D`` and ``E_k^mu r_k^4 = 16/(3 pi) G^D``.
+
+Shear, section 6 against beam theory: section 6 implies ``G^D = (3 pi / 16) E^mu r^4``. The
+Euler-Bernoulli beams of the face-bonded cubic lattice give half of it: in a uniform shear of the
+plane (a, b) (engineering strain gamma), a bond along b of spacing ``l = 2R`` carries the shear force
+``12 beta_a beta_b / (beta_a + beta_b) gamma / l^2`` (``beta = E I``, the element rotation balancing
+the bending moments of the bonds along a and along b), one bond per area ``l^2``, so::
+
+    G_ab = (3 pi / 32) * 2 x y / (x + y),   x = E_a^mu r_a^4,  y = E_b^mu r_b^4
+
+(``lattice_shear_modulus``). The calibration keeps section 6 as written (it is the reference); the
+verification measures G and reports both predictions next to the measurement.
+
+References: PHYSICS.md sections 1, 2, 6 (W 4.5, 4.14).
+"""
+import math
+from dataclasses import asdict, dataclass
+
+from pardem.config import DeckError, Field, boolean, choice, number, positive, triple
+
+DIRECTIONS = "LRT"
+R_MAX = 2.0            # largest adimensional bond radius accepted (W's calibrated set has 1.14)
+SHEAR_PLANES = {"LR": (0, 1), "LT": (0, 2), "RT": (1, 2)}   # (shear direction a, gradient axis b)
+
+
+def _strength():
+    """Checker: a stress threshold [Pa] >= 0, or [L, R, T] all > 0 (0 = none)."""
+    inner = number(lo=0.0, lo_open=False)
+
+    def check(name, v):
+        if isinstance(v, list):
+            if len(v) != 3:
+                raise DeckError(f"{name} = {v!r}: expected one number >= 0 or a list of 3 numbers > 0 "
+                                f"(L, R, T)")
+            vals = tuple(inner(f"{name}[{k}]", x) for k, x in enumerate(v))
+            if min(vals) == 0.0 and max(vals) > 0.0:
+                raise DeckError(f"{name} = {v!r}: expected all three values > 0, or the single number 0 "
+                                f"for no threshold")
+            return vals
+        return inner(name, v)
+    check.allowed = "a number >= 0 or [L, R, T]"
+    return check
+
+
+def _same_or(inner):
+    def check(name, v):
+        if v == "same":
+            return "same"
+        try:
+            return inner(name, v)
+        except DeckError as err:
+            raise DeckError(f"{err} or \"same\" (E_R^D = E_T^D)") from None
+    return check
+
+
+# The targets deck of ``python -m pardem.drivers.calibrate`` (see drivers/calibrate_beech.toml).
+CALIBRATE_SCHEMA = {
+    "targets": {
+        "young_L": Field(9.47e9, positive(), "E_L^D, domain Young's modulus along L [Pa]"),
+        "young_R": Field("same", _same_or(positive()),
+                         "E_R^D along R [Pa]; \"same\" = E_T^D (then E_R^mu = E_T^mu, r_R = r_T)"),
+        "young_T": Field(7.89e8, positive(), "E_T^D, domain Young's modulus along T [Pa]"),
+        "shear": Field(7.7e8, positive(),
+                       f"G^D, domain shear modulus [Pa]; r_k = sqrt(4/3 G^D / E_k^D) must be <= {R_MAX:g}"),
+        "density": Field(720.0, positive(), "rho_D, density of the represented continuum [kg/m^3]"),
+        "tensile_strength": Field(0.0, _strength(),
+                                  "sigma_max^D, tensile strength [Pa] (scalar or [L, R, T]); 0 = unbreakable"),
+        "shear_strength": Field(0.0, _strength(),
+                                "tau_max^D, shear strength [Pa] (scalar or [L, R, T]); 0 = unbreakable"),
+        "densification_stress": Field(0.0, number(lo=0.0, lo_open=False),
+                                      "sigma0^D, densification threshold in compression along T [Pa]; "
+                                      "0 = elastic"),
+        "densification_p0": Field(0.05, positive(), "p0 of PHYSICS.md section 7 (dimensionless, not scaled)"),
+    },
+    "domain": {
+        "box": Field([0.01, 0.01, 0.01], triple(positive()), "box of the calibrated deck's ordered domain [m]"),
+        "radius": Field(0.2381e-3, positive(), "element radius [m]"),
+    },
+    "bonds": {
+        "law": Field("TOR", choice("TOR", "hankinson", "linear", "spherical"),
+                     "anisotropy law of the calibrated deck (TOR: the ordered lattice's bonds lie along L, R, T)"),
+        "poisson": Field(0.3, number(-1.0, 0.5), "bond Poisson ratio (torsion only)"),
+        "damping": Field(0.2, number(0.0, 1.0, lo_open=False, hi_open=False), "bond damping ratio"),
+    },
+    "verify": {
+        "strain": Field(0.002, number(0.0, 0.05), "--verify: nominal compression strain along L and T"),
+        "shear_strain": Field(0.002, number(0.0, 0.05), "--verify: engineering shear strain of the shear test"),
+        "shear_plane": Field("LT", choice(*SHEAR_PLANES), "--verify: plane of the shear test"),
+        "transits": Field(8.0, number(1.0, 1000.0, lo_open=False, hi_open=False),
+                          "--verify: loading time in wave transits across the domain"),
+        "quick_elements": Field(8, number(lo=4, lo_open=False, hi=40, hi_open=False, integer=True),
+                                "--quick: elements per edge of the verification cube"),
+        "shear": Field(True, boolean, "--verify: run the shear test too"),
+    },
+}
+
+
+@dataclass(frozen=True)
+class Targets:
+    """Properties of the represented continuum (SI): moduli [Pa] (young_R None = same as young_T),
+    density [kg/m^3], strengths [Pa] as (L, R, T), densification threshold [Pa] along T, p0 [-]."""
+    young_L: float
+    young_T: float
+    shear: float
+    density: float
+    young_R: float = None
+    tensile_strength: tuple = (0.0, 0.0, 0.0)
+    shear_strength: tuple = (0.0, 0.0, 0.0)
+    densification_stress: float = 0.0
+    densification_p0: float = 0.05
+
+    @classmethod
+    def from_deck(cls, deck):
+        """From the checked ``[targets]`` section of CALIBRATE_SCHEMA."""
+        t = deck["targets"]
+        return cls(young_L=t["young_L"], young_T=t["young_T"], shear=t["shear"], density=t["density"],
+                   young_R=None if t["young_R"] == "same" else t["young_R"],
+                   tensile_strength=as_lrt(t["tensile_strength"]), shear_strength=as_lrt(t["shear_strength"]),
+                   densification_stress=t["densification_stress"], densification_p0=t["densification_p0"])
+
+    def young(self):
+        """(E_L^D, E_R^D, E_T^D) [Pa]."""
+        return (self.young_L, self.young_T if self.young_R is None else self.young_R, self.young_T)
+
+
+@dataclass(frozen=True)
+class BondCalibration:
+    """Bond parameters from ``calibrate`` (each (L, R, T) triple in that order).
+
+    young [Pa], radius_ratio [-], tensile_strength and shear_strength [Pa] (0 = none),
+    densification_stress [Pa] (bonds along T), densification_p0 [-], element_density [kg/m^3].
+    """
+    young: tuple
+    radius_ratio: tuple
+    tensile_strength: tuple
+    shear_strength: tuple
+    densification_stress: float
+    densification_p0: float
+    element_density: float
+
+    def as_dict(self):
+        return asdict(self)
+
+
+def as_lrt(v):
+    """(L, R, T) floats of a scalar or a triple."""
+    return tuple(float(x) for x in v) if isinstance(v, (list, tuple)) else (float(v),) * 3
+
+
+def check_targets(t):
+    """Raise DeckError naming the first unusable target field and its allowed range."""
+    for name in ("young_L", "young_T", "shear", "density"):
+        v = getattr(t, name)
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise DeckError(f"targets.{name} = {v!r}: expected a number in (0, inf)")
+    if t.young_R is not None and not (math.isfinite(t.young_R) and t.young_R > 0):
+        raise DeckError(f"targets.young_R = {t.young_R!r}: expected a number in (0, inf) or \"same\"")
+    E = t.young()
+    limit = 0.75 * R_MAX**2 * min(E)
+    if t.shear > limit:
+        k = DIRECTIONS[E.index(min(E))]
+        raise DeckError(f"targets.shear = {t.shear!r} is out of range: expected a number in (0, {limit:.6g}] "
+                        f"(3/4 r_max^2 E_{k}^D with r_max = {R_MAX:g}: the bond radius ratio "
+                        f"r_{k} = sqrt(4/3 G^D / E_{k}^D) would exceed {R_MAX:g})")
+    for name in ("tensile_strength", "shear_strength"):
+        vals = getattr(t, name)
+        if len(vals) != 3 or any(not (math.isfinite(x) and x >= 0) for x in vals) or (
+                min(vals) == 0.0 < max(vals)):
+            raise DeckError(f"targets.{name} = {list(vals)!r}: expected a number >= 0 or 3 numbers > 0 (L, R, T)")
+    if not (math.isfinite(t.densification_stress) and t.densification_stress >= 0):
+        raise DeckError(f"targets.densification_stress = {t.densification_stress!r}: expected a number in [0, inf)")
+    if not (math.isfinite(t.densification_p0) and t.densification_p0 > 0):
+        raise DeckError(f"targets.densification_p0 = {t.densification_p0!r}: expected a number in (0, inf)")
+
+
+def calibrate(targets):
+    """Bond parameters of the ordered lattice reproducing ``targets`` (PHYSICS.md section 6).
+
+    Returns a ``BondCalibration``; DeckError on unusable targets.
+    """
+    check_targets(targets)
+    E_D = targets.young()
+    r2 = tuple(4.0 / 3.0 * targets.shear / e for e in E_D)
+    young = tuple(4.0 / math.pi * e / s for e, s in zip(E_D, r2))
+    scale = tuple(4.0 / (math.pi * s) for s in r2)            # sigma^mu / sigma^D per direction
+    return BondCalibration(
+        young=young, radius_ratio=tuple(math.sqrt(s) for s in r2),
+        tensile_strength=tuple(c * s for c, s in zip(scale, targets.tensile_strength)),
+        shear_strength=tuple(c * s for c, s in zip(scale, targets.shear_strength)),
+        densification_stress=scale[2] * targets.densification_stress,
+        densification_p0=targets.densification_p0,
+        element_density=6.0 / math.pi * targets.density)
+
+
+def lattice_young(young, radius_ratio):
+    """Domain modulus ``(pi/4) E^mu r^2`` [Pa] of the ordered lattice along a lattice axis whose bonds
+    have modulus ``young`` [Pa] and radius ratio ``radius_ratio`` (PHYSICS.md section 6)."""
+    return math.pi / 4.0 * young * radius_ratio**2
+
+
+def section6_shear_modulus(young, radius_ratio):
+    """The shear modulus section 6 ascribes to bonds ``(E^mu, r)``: ``(3 pi / 16) E^mu r^4`` [Pa]."""
+    return 3.0 * math.pi / 16.0 * young * radius_ratio**4
+
+
+def lattice_shear_modulus(young, radius_ratio, plane):
+    """Beam-theory shear modulus [Pa] of the face-bonded cubic lattice in ``plane`` ("LR", "LT", "RT").
+
+    ``young`` and ``radius_ratio`` are (L, R, T) triples of the bonds. ``(3 pi / 32)`` times the
+    harmonic mean of ``E^mu r^4`` over the two directions of the plane (module docstring).
+    """
+    a, b = SHEAR_PLANES[plane]
+    x = young[a] * radius_ratio[a] ** 4
+    y = young[b] * radius_ratio[b] ** 4
+    return 3.0 * math.pi / 32.0 * 2.0 * x * y / (x + y)
+
+
+def predictions(cal, plane):
+    """Analytic domain properties of the calibrated lattice: E_L^D, E_R^D, E_T^D [Pa] by section 6
+    (exact for the lattice), and the shear modulus of ``plane`` by beam theory and by section 6 (its
+    relation ``G = (3 pi / 16) E^mu r^4`` applied to the plane's bonds like the beam formula: twice
+    the beam value; for calibrated bonds, ``E^mu r^4`` is the same along L, R, T and this is G^D)."""
+    E = [lattice_young(e, r) for e, r in zip(cal.young, cal.radius_ratio)]
+    G_beam = lattice_shear_modulus(cal.young, cal.radius_ratio, plane)
+    return {"young_L": E[0], "young_R": E[1], "young_T": E[2],
+            "shear_section6": 2.0 * G_beam, "shear_beam": G_beam}
+
+
+def compress_deck(cal, deck, strengths_known=True):
+    """The raw (TOML-ready) compress deck of the calibration ``cal`` and the targets ``deck``.
+
+    ``strengths_known``: the compress schema has the rupture and densification keys; otherwise they
+    are left out (and the caller should say so).
+    """
+    def triple_or_scalar(v):
+        return list(v) if len(set(v)) > 1 else v[0]
+    bonds = {"young": list(cal.young), "law": deck["bonds"]["law"], "radius_ratio": list(cal.radius_ratio),
+             "poisson": deck["bonds"]["poisson"], "damping": deck["bonds"]["damping"]}
+    if strengths_known:
+        bonds.update(tensile_strength=triple_or_scalar(cal.tensile_strength),
+                     shear_strength=triple_or_scalar(cal.shear_strength),
+                     densification_stress=cal.densification_stress, densification_p0=cal.densification_p0)
+    return {"domain": {"kind": "ordered", "box": list(deck["domain"]["box"]), "radius": deck["domain"]["radius"],
+                       "density": cal.element_density, "tilt_deg": 0.0},
+            "bonds": bonds}
