@@ -11,7 +11,8 @@ from pardem.config import DeckError, describe, load_deck
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_UNSTABLE = 0, 1, 2, 3
 
 
-def driver_parser(prog, description, schema):
+def driver_parser(prog, description, schema, run_options=True):
+    """The common options; ``run_options`` adds ``--steps`` and ``--restart`` (time-stepping drivers)."""
     p = argparse.ArgumentParser(
         prog=prog, description=description,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -21,11 +22,13 @@ def driver_parser(prog, description, schema):
     p.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
                    dest="overrides", help="override one deck key (repeatable, applied after --config)")
     p.add_argument("--out", metavar="DIR", help="output directory")
-    p.add_argument("--steps", type=int, metavar="N",
-                   help="total steps of the run from its start, also on restart (default: from the deck)")
-    p.add_argument("--restart", metavar="CHECKPOINT.h5",
-                   help="continue the run of this checkpoint; its deck is used unless --config is given, "
-                        "and --set may change run length, output, checkpoint and parallel settings")
+    if run_options:
+        p.add_argument("--steps", type=int, metavar="N",
+                       help="total steps of the run from its start, also on restart (default: from the deck)")
+        p.add_argument("--restart", metavar="CHECKPOINT.h5",
+                       help="continue the run of this checkpoint; its deck is used unless --config is "
+                            "given, and --set may change run length, output, checkpoint and parallel "
+                            "settings")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
 
@@ -40,8 +43,9 @@ def fail_usage(comm, message):
 def read_deck(comm, schema, args, base=None):
     """The checked deck of ``--config`` (or ``base``) and ``--set``; exits 2 on bad input."""
     try:
-        if args.steps is not None and args.steps < 1:
-            raise DeckError(f"--steps {args.steps}: expected an integer >= 1")
+        steps = getattr(args, "steps", None)
+        if steps is not None and steps < 1:
+            raise DeckError(f"--steps {steps}: expected an integer >= 1")
         return load_deck(schema, args.config, args.overrides, base=base)
     except DeckError as err:
         fail_usage(comm, str(err))

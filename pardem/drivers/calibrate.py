@@ -52,7 +52,8 @@ ROUND_TRIP_TOLERANCE = 0.02     # E_L^D and E_T^D must come back within 2 %
 
 
 def parser():
-    p = driver_parser("python -m pardem.drivers.calibrate", __doc__.split("\n\n")[0], calib.CALIBRATE_SCHEMA)
+    p = driver_parser("python -m pardem.drivers.calibrate", __doc__.split("\n\n")[0], calib.CALIBRATE_SCHEMA,
+                      run_options=False)
     p.add_argument("--verify", action="store_true",
                    help="measure E_L^D, E_T^D (compressions) and G^D (simple shear) of the calibrated "
                         "ordered domain and report them against the targets")
@@ -236,9 +237,6 @@ def format_table(report):
 
 def run(comm, args):
     t_start = time.perf_counter()
-    if args.restart or args.steps is not None:
-        fail_usage(comm, f"{'--restart' if args.restart else '--steps'}: not an option of the calibrate "
-                         f"driver (allowed: --config, --set, --out, --verify, --quick, --quiet)")
     deck = read_deck(comm, calib.CALIBRATE_SCHEMA, args)
     try:
         targets, cal, raw, _checked = calibrated_deck(deck)
