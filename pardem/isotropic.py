@@ -1,0 +1,508 @@
+"""Isotropic preparation of a granular packing and its elastic moduli. PHYSICS.md sections 8, 11, 12.
+
+Protocol (driver ``python -m pardem.drivers.isotropic``; ``prepare`` is the reusable part):
+
+1. **Gas.** ``n`` spheres of the deck's radii (``sample.radii`` with ``sample.fractions``, assigned
+   in a seeded random order) at random non-overlapping centres (random sequential addition with a
+   cell grid, ``numpy.random.default_rng(seed)``) in a cubic periodic cell at the solid fraction
+   ``sample.gas_solid_fraction``. Built on rank 0 and broadcast, so a seed gives the same gas on any
+   number of ranks.
+2. **Compression (frictionless Hertz, servo).** The cell shrinks under the servo
+   ``deps/dt = gain (p - p0)`` with ``gain = preparation.servo_rate / p0`` (so ``servo_rate`` [1/s]
+   is the strain rate at a pressure error of 100 %), capped at ``preparation.max_rate`` [1/s], with
+   the global viscous damping ``-C m v``, ``-C I w`` (``preparation.damping`` = C [1/s]) removing
+   the kinetic energy. The run goes on, servo still active, until static equilibrium at p0.
+3. **Static equilibrium** (checked every ``preparation.check_every`` steps), all three at once:
+
+   * kinetic energy: ``E_k / N < kinetic_tolerance * p0 * V_mean`` with ``V_mean`` the mean sphere
+     volume. ``E_k / (N p0 V_mean) = rho <v^2> / (2 p0)`` is the dynamic pressure of the velocity
+     fluctuations against p0 (the square of an inertial number); default 1e-9: at 100 kPa glass
+     that is a speed of 3e-4 m/s, an oscillation amplitude of about 2e-3 of the mean overlap.
+   * force balance: ``mean_k |F_k| / mean_c |f_c| < force_tolerance`` (default 1e-4), the mean
+     unbalanced contact force on the elements (viscous drag excluded: it is removed from the force
+     of the step using the half-step velocity that produced it) over the mean contact force;
+   * pressure: ``|p - p0| / p0 < pressure_tolerance`` (default 1e-3).
+
+   Then the servo stops (the cell is fixed) and the state is measured: p, Z = 2 N_c / N, the solid
+   fraction (overlap lenses removed), Z without rattlers and the normal force distribution.
+   Pressures of ``--pressures`` are taken from low to high, each continuing the previous packing.
+4. **Rattlers** (on rank 0 from the gathered contact network of force-carrying contacts,
+   ``delta > 0``): an element with fewer than ``d + 1 = 4`` such contacts is a rattler; it and its
+   contacts are removed and the count is repeated until no element is removed.
+   ``Z_no_rattlers = 2 N_c' / N'`` over the remaining elements and contacts.
+5. **Moduli.** Friction ``material.friction`` is switched on (contacts undamped, the tangential
+   history starts at zero, so the static state is unchanged) and the velocities are zeroed. A
+   small affine strain increment is applied to the cell in ONE step through its diagonal rate, so
+   positions map affinely and the contact laws see the affine relative motion ``-g d dt`` for the
+   tangential increment: isotropic compression ``diag(-e, -e, -e)``, then a volume-preserving
+   shear ``diag(+e, -e, 0)``. The stress after that step is the **affine** response (no
+   relaxation); then the cell stays fixed and the packing relaxes (damping) until the kinetic and
+   force criteria hold again: the **relaxed** response. Conventions (pressure compression
+   positive, stress tension positive)::
+
+       K  = (p1 - p0) / (-(V1 - V0) / V0)
+       mu = ((s_xx - s_yy)_1 - (s_xx - s_yy)_0) / (2 (eps_xx - eps_yy)),   eps_aa = L_a1 / L_a0 - 1
+
+   For an isotropic packing ``mu`` is PHYSICS.md's ``1/2 dsigma_12 / deps_12`` (the shear in the
+   axes turned by 45 deg; the cell supports diagonal rates only). The shear starts from the relaxed
+   state of the isotropic increment.
+   ``moduli.strain = "auto"`` takes ``e = 0.01 <delta / d>`` (mean over the contacts of overlap over
+   centre distance): the normal force of a mean contact changes by about 1.5 %, so the Hertz law is
+   linear to about 0.3 %, and the tangential force reaches ``kt e d / fn = 1.5 (kt / kn) e d / delta
+   ~ 0.013 fn``, far below ``mu fn`` (no sliding, except in contacts with almost no overlap); the
+   stress increments are then about 1e-2 of p at every pressure, well above the equilibrium's
+   residual drift. A fixed number (1e-6 to 1e-5) may be given instead.
+6. Before the next pressure the friction is switched off again (history cleared) and the servo
+   resumes at the new p0.
+
+The contact law is Hertz-Mindlin (``pardem.physics.hertz_mindlin``); all loops over elements and
+contacts per step run in the engine's Numba kernels; the checks are numpy over arrays every
+``check_every`` steps.
+"""
+import time
+
+import numpy as np
+
+from pardem import granular
+from pardem.config import DeckError, Field, boolean, choice, number, positive
+from pardem.physics import hertz_mindlin
+from pardem.reducer import granular_measures
+
+ROW_KEYS = ("p0", "p", "Z", "Z_no_rattlers", "solid_fraction", "K_affine", "K_relaxed", "mu_affine",
+            "mu_relaxed")
+
+
+def _number_list(inner, min_len=1):
+    def check(name, v):
+        if not isinstance(v, list) or len(v) < min_len:
+            raise DeckError(f"{name} = {v!r}: expected a list of at least {min_len} numbers, each "
+                            f"{inner.allowed}")
+        return [inner(f"{name}[{k}]", x) for k, x in enumerate(v)]
+    return check
+
+
+def _auto_or_number(inner):
+    def check(name, v):
+        if v == "auto":
+            return "auto"
+        try:
+            return inner(name, v)
+        except DeckError as err:
+            raise DeckError(f"{err} or \"auto\"") from None
+    return check
+
+
+SCHEMA = {
+    "sample": {
+        "n": Field(10000, number(lo=8, lo_open=False, integer=True), "number of spheres"),
+        "radii": Field([0.105e-3, 0.095e-3], _number_list(positive()), "sphere radii [m] (one per species)"),
+        "fractions": Field([0.5, 0.5], _number_list(positive()),
+                           "number fractions of the species (normalised; same length as radii)"),
+        "density": Field(2500.0, positive(), "grain density [kg/m^3]"),
+        "seed": Field(1, number(lo=0, lo_open=False, integer=True), "seed of the gas (centres and radii order)"),
+        "gas_solid_fraction": Field(0.25, number(0.0, 0.33), "solid fraction of the initial gas"),
+    },
+    "material": {
+        "shear_modulus": Field(30e9, positive(), "grain shear modulus G [Pa]"),
+        "poisson": Field(0.2, number(-1.0, 0.5), "grain Poisson ratio"),
+        "friction": Field(0.3, number(lo=0.0, lo_open=False),
+                          "contact friction when measuring the moduli (preparation is frictionless)"),
+        "restitution": Field(1.0, number(0.0, 1.0, hi_open=False),
+                             "normal restitution of the contacts during preparation (moduli: undamped)"),
+    },
+    "preparation": {
+        "pressures": Field([1e5, 1e6, 1e7, 1e8], _number_list(positive()),
+                           "target pressures p0 [Pa], run from low to high"),
+        "servo_rate": Field(4000.0, positive(),
+                            "servo strain rate at a pressure error of 100 % [1/s] (gain = servo_rate / p0); "
+                            "the loop is stable while 3 (K / p0) servo_rate dt < 2"),
+        "max_rate": Field(1000.0, positive(), "largest strain rate of the servo [1/s] (the gas compression rate)"),
+        "damping": Field(1e5, positive(), "global viscous damping C [1/s] (drag -C m v, -C I w)"),
+        "check_every": Field(200, number(lo=1, lo_open=False, integer=True),
+                             "steps between equilibrium checks"),
+        "max_steps": Field(400000, number(lo=1, lo_open=False, integer=True),
+                           "largest number of steps per pressure (compression and relaxation)"),
+    },
+    "equilibrium": {
+        "kinetic_tolerance": Field(1e-9, positive(), "E_k / (N p0 V_mean) below this"),
+        "force_tolerance": Field(1e-4, positive(), "mean unbalanced force / mean contact force below this"),
+        "pressure_tolerance": Field(1e-3, positive(), "|p - p0| / p0 below this"),
+    },
+    "moduli": {
+        "enabled": Field(True, boolean, "measure the moduli at each pressure"),
+        "strain": Field("auto", _auto_or_number(number(0.0, 1e-2)),
+                        "affine strain increment e, or auto = 0.01 <delta / d> over the contacts"),
+        "max_relax_steps": Field(200000, number(lo=1, lo_open=False, integer=True),
+                                 "largest number of steps of each relaxation after an increment"),
+    },
+    "run": {
+        "dt_fraction": Field(0.25, number(0.0, 1.0, hi_open=False),
+                             "time step as a fraction of the Rayleigh critical step"),
+        "skin": Field(0.2, positive(), "Verlet skin as a fraction of the smallest radius"),
+        "slab_axis": Field("x", choice("x", "y", "z"), "axis the MPI slabs are stacked along"),
+        "progress_seconds": Field(10.0, positive(), "seconds between progress lines (rank 0)"),
+    },
+}
+
+
+def check_sample(deck):
+    """Cross-field checks of a checked deck (raises ``DeckError``)."""
+    s = deck["sample"]
+    if len(s["fractions"]) != len(s["radii"]):
+        raise DeckError(f"sample.fractions has {len(s['fractions'])} entries: expected one per radius "
+                        f"({len(s['radii'])})")
+
+
+def young_modulus(material):
+    return 2.0 * material["shear_modulus"] * (1.0 + material["poisson"])
+
+
+def contact_params(material, friction, restitution=1.0):
+    """The ``hertz_mindlin`` parameters dict of the deck's grains."""
+    return {"young": young_modulus(material), "poisson": material["poisson"],
+            "friction": float(friction), "restitution": float(restitution)}
+
+
+# ---------------------------------------------------------------------------------------------
+# the gas
+
+def species_radii(n, radii, fractions, rng):
+    """[n] radii: ``round(n f_k)`` of species k (the last takes the remainder), in random order."""
+    f = np.asarray(fractions, dtype=float)
+    f = f / f.sum()
+    counts = np.floor(n * f + 0.5).astype(int)
+    counts[-1] = n - counts[:-1].sum()
+    r = np.repeat(np.asarray(radii, dtype=float), counts)
+    return r[rng.permutation(n)]
+
+
+def gas(n, radii, fractions, solid_fraction, seed):
+    """Random non-overlapping centres [n, 3] in a periodic cube, the radii [n] and the edge [m].
+
+    Random sequential addition: each sphere is drawn uniformly until it overlaps none of those
+    placed (checked in the 27 neighbouring cells of a grid of cell size >= 2 R_max).
+    """
+    rng = np.random.default_rng(seed)
+    r = species_radii(n, radii, fractions, rng)
+    edge = (np.sum(4.0 / 3.0 * np.pi * r**3) / solid_fraction) ** (1.0 / 3.0)
+    m = max(1, int(edge // (2.0 * r.max())))
+    size = edge / m
+    grid = {}
+    pos = np.empty((n, 3))
+    for k in range(n):
+        for _ in range(100000):
+            x = rng.uniform(0.0, edge, 3)
+            c = np.floor(x / size).astype(int) % m
+            near = [q for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
+                    for q in grid.get(((c[0] + dx) % m, (c[1] + dy) % m, (c[2] + dz) % m), ())]
+            if near:
+                d = pos[near] - x
+                d -= edge * np.round(d / edge)
+                if np.any(np.einsum("ij,ij->i", d, d) < (r[near] + r[k]) ** 2):
+                    continue
+            pos[k] = x
+            grid.setdefault(tuple(c), []).append(k)
+            break
+        else:
+            raise RuntimeError(f"random sequential addition: no room for sphere {k} of {n} at solid "
+                               f"fraction {solid_fraction}")
+    return pos, r, edge
+
+
+# ---------------------------------------------------------------------------------------------
+# measurements
+
+def contact_forces(sim):
+    """This rank's contacts counted once (lower-gid end owned) and touching: dict of ``gid_i``,
+    ``gid_j`` [n_c], ``fn`` [n_c] elastic Hertz normal force [N], ``force`` [n_c, 3] force on i [N],
+    ``branch`` [n_c, 3] [m], ``delta`` [n_c] overlap [m], ``dist`` [n_c] centre distance [m]."""
+    e, c = sim.elements, sim.contacts
+    d = e.x[c.j] - e.x[c.i]
+    if c.shift is not None:
+        d = d + c.shift
+    dist = np.sqrt(np.einsum("ij,ij->i", d, d))
+    ri, rj = e.radius[c.i], e.radius[c.j]
+    delta = ri + rj - dist
+    keep = (delta > 0.0) & c.counted_once(e.n_owned)
+    d, dist, delta, ri, rj = d[keep], dist[keep], delta[keep], ri[keep], rj[keep]
+    fn = 4.0 / 3.0 * c.params.e_star * np.sqrt(ri * rj / (ri + rj)) * delta**1.5
+    force = -fn[:, None] * d / dist[:, None] + c.history[keep]
+    return {"gid_i": e.gid[c.i[keep]], "gid_j": e.gid[c.j[keep]], "fn": fn, "force": force,
+            "branch": d, "delta": delta, "dist": dist}
+
+
+def balance(sim, p0=None):
+    """Equilibrium measures (collective): dict with ``pressure`` [Pa], ``kinetic`` = E_k / (N p0
+    V_mean) (p0 defaults to p), ``unbalanced`` = mean |F| / mean |f_c| and ``unbalanced_max`` =
+    max |F| / mean |f_c|, ``n_contacts``."""
+    e = sim.elements
+    n = e.n_owned
+    vh = e.v[:n] - 0.5 * sim.dt * e.f[:n] * e.inv_mass[:n, None]   # velocity the drag was computed with
+    fc = e.f[:n] + sim.viscous_damping * e.mass[:n, None] * vh
+    fmag = np.sqrt(np.einsum("ij,ij->i", fc, fc))
+    cf = contact_forces(sim)
+    fcmag = np.sqrt(np.einsum("ij,ij->i", cf["force"], cf["force"]))
+    vol = np.sum(4.0 / 3.0 * np.pi * e.radius[:n] ** 3)
+    g = sim.comm.sum([fmag.sum(), n, fcmag.sum(), len(fcmag), vol])
+    fmax = sim.comm.max(float(fmag.max()) if n else 0.0)
+    stress = sim.global_stress()
+    p = float(-np.trace(stress) / 3.0)
+    ref = p if p0 is None else p0
+    mean_fc = g[2] / g[3] if g[3] > 0 else 0.0
+    ke = sim.kinetic_energy()
+    return {"pressure": p, "stress": stress,
+            "kinetic": float(ke / (ref * g[4])) if ref > 0 else float("inf"),
+            "unbalanced": float(g[0] / g[1] / mean_fc) if mean_fc > 0 else float("inf"),
+            "unbalanced_max": float(fmax / mean_fc) if mean_fc > 0 else float("inf"),
+            "n_contacts": int(round(g[3])), "mean_contact_force": float(mean_fc)}
+
+
+def remove_rattlers(n, gid_i, gid_j, min_contacts=4):
+    """Mask [n] of the non-rattlers and mask [n_c] of the contacts between them: elements with
+    fewer than ``min_contacts`` contacts are removed with their contacts, repeatedly."""
+    alive = np.ones(n, dtype=bool)
+    live = np.ones(len(gid_i), dtype=bool)
+    while True:
+        deg = np.bincount(gid_i[live], minlength=n) + np.bincount(gid_j[live], minlength=n)
+        out = alive & (deg < min_contacts)
+        if not out.any():
+            return alive, live
+        alive &= ~out
+        live &= alive[gid_i] & alive[gid_j]
+
+
+def network(sim, bins=None):
+    """State of the packing (collective; the contact network is gathered on rank 0): dict with
+    ``p`` [Pa], ``Z``, ``Z_no_rattlers``, ``rattlers`` (count), ``solid_fraction``, ``n_contacts``,
+    ``mean_overlap_ratio`` = <delta / d>, and ``force_distribution`` (histogram of f_n / <f_n>:
+    ``edges``, ``density``, also ``mean_fn`` [N])."""
+    m = granular_measures(sim)
+    cf = contact_forces(sim)
+    parts = sim.comm.gather({"gi": cf["gid_i"], "gj": cf["gid_j"], "fn": cf["fn"],
+                             "ratio": cf["delta"] / cf["dist"]})
+    n = int(round(float(sim.comm.sum(sim.elements.n_owned))))
+    out = None
+    if sim.comm.is_root:
+        gi = np.concatenate([q["gi"] for q in parts]).astype(np.int64)
+        gj = np.concatenate([q["gj"] for q in parts]).astype(np.int64)
+        fn = np.concatenate([q["fn"] for q in parts])
+        ratio = np.concatenate([q["ratio"] for q in parts])
+        alive, live = remove_rattlers(n, gi, gj)
+        mean_fn = float(fn.mean()) if len(fn) else 0.0
+        edges = np.linspace(0.0, 5.0, 51) if bins is None else bins
+        dens, _ = np.histogram(fn / mean_fn if mean_fn > 0 else fn, bins=edges, density=True)
+        out = {"Z": 2.0 * len(gi) / n,
+               "Z_no_rattlers": 2.0 * int(live.sum()) / max(int(alive.sum()), 1),
+               "rattlers": int(n - alive.sum()), "n_contacts": int(len(gi)),
+               "mean_overlap_ratio": float(ratio.mean()) if len(ratio) else 0.0,
+               "force_distribution": {"edges": edges.tolist(), "density": dens.tolist(),
+                                      "mean_fn": mean_fn,
+                                      "fraction_above_mean": float(np.mean(fn > mean_fn)) if len(fn) else 0.0}}
+    out = sim.comm.bcast(out)
+    out["p"] = m["pressure"]
+    out["solid_fraction"] = m["solid_fraction"]
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# running
+
+class Progress:
+    def __init__(self, comm, seconds, quiet):
+        self.comm, self.seconds, self.quiet = comm, seconds, quiet
+        self.last = time.perf_counter()
+
+    def say(self, text, force=False):
+        now = time.perf_counter()
+        if self.quiet or not self.comm.is_root or (not force and now - self.last < self.seconds):
+            return
+        self.last = now
+        print(text, flush=True)
+
+
+def relax(sim, tol, check_every, max_steps, p0=None, progress=None, label=""):
+    """Run until the kinetic and force criteria (and with ``p0`` the pressure one) hold.
+
+    Returns ``(balance dict, converged, steps)``; collective.
+    """
+    steps = 0
+    while True:
+        sim.run(check_every)
+        steps += check_every
+        b = balance(sim, p0)
+        ok = b["kinetic"] < tol["kinetic_tolerance"] and b["unbalanced"] < tol["force_tolerance"]
+        if p0 is not None:
+            ok = ok and abs(b["pressure"] / p0 - 1.0) < tol["pressure_tolerance"]
+        if progress is not None:
+            progress.say(f"  {label} step {sim.step_count}: p = {b['pressure']:.6g} Pa, "
+                         f"E_k/(N p0 V) = {b['kinetic']:.3g}, unbalanced = {b['unbalanced']:.3g}, "
+                         f"contacts {b['n_contacts']}, cell rate {sim.cell.rate[0]:.3g} 1/s")
+        if ok or steps >= max_steps:
+            return b, bool(ok), steps
+
+
+def build_gas(comm, deck):
+    """The granular case of the deck's gas (frictionless, damped, servo off), and the gas info."""
+    s, mat, run = deck["sample"], deck["material"], deck["run"]
+    data = None
+    if comm.is_root:
+        data = gas(s["n"], s["radii"], s["fractions"], s["gas_solid_fraction"], s["seed"])
+    pos, radii, edge = comm.bcast(data)
+    params = contact_params(mat, 0.0, mat["restitution"])
+    dt_c = granular.critical_time_step("hertz_mindlin", hertz_mindlin.Params(**params), radii,
+                                       s["density"])
+    dt = run["dt_fraction"] * dt_c
+    case = granular.build(comm, pos, radii, s["density"], "hertz_mindlin", params, np.zeros(3),
+                          np.full(3, edge), dt, run["skin"] * float(radii.min()),
+                          viscous_damping=deck["preparation"]["damping"],
+                          slab_axis="xyz".index(run["slab_axis"]))
+    return case
+
+
+def prepare(comm, deck, p0, case=None, progress=None):
+    """Bring the deck's gas (or the packing of ``case``) to static equilibrium at ``p0`` [Pa].
+
+    Frictionless contacts (history cleared), the servo at p0 with viscous damping, until the three
+    criteria of the module docstring hold (or ``preparation.max_steps``). The servo is then
+    stopped, the cell fixed. Returns ``(case, info)`` with ``info`` the balance measures,
+    ``converged`` and ``steps``. Collective.
+    """
+    if case is None:
+        case = build_gas(comm, deck)
+    sim = case.sim
+    prep, mat = deck["preparation"], deck["material"]
+    c = sim.contacts
+    c.params = hertz_mindlin.Params(**contact_params(mat, 0.0, mat["restitution"]))
+    c.history[:] = 0.0
+    sim.viscous_damping = prep["damping"]
+    sim.cell.servo = (float(p0), prep["servo_rate"] / float(p0), prep["max_rate"])
+    b, ok, steps = relax(sim, deck["equilibrium"], prep["check_every"], prep["max_steps"], p0=p0,
+                         progress=progress, label=f"p0 = {p0:.3g} Pa")
+    sim.cell.servo = None
+    sim.cell.rate = np.zeros(3)
+    return case, {"balance": b, "converged": ok, "steps": steps}
+
+
+def increment(sim, sign, e, tol, check_every, max_steps, progress=None, label=""):
+    """One affine strain increment ``diag(sign) * e`` of the cell in ONE step (velocities zeroed
+    first), then relaxation at fixed cell (kinetic and force criteria). Collective.
+
+    Returns a dict: ``s0``, ``affine``, ``relaxed`` stresses [3, 3] [Pa] (tension positive),
+    ``L0``, ``L1`` cell edges [3] [m] before and after, ``converged``, ``steps``, ``unbalanced``.
+    """
+    n = sim.elements.n_total
+    sim.elements.v[:n] = 0.0
+    sim.elements.w[:n] = 0.0
+    s0 = sim.global_stress()
+    L0 = sim.cell.length.copy()
+    sim.cell.rate = np.asarray(sign, dtype=float) * e / sim.dt
+    sim.run(1)
+    sim.cell.rate = np.zeros(3)
+    s_aff = sim.global_stress()
+    L1 = sim.cell.length.copy()
+    b, ok, steps = relax(sim, tol, check_every, max_steps, progress=progress, label=label)
+    return {"s0": s0, "affine": s_aff, "relaxed": b["stress"], "L0": L0, "L1": L1, "converged": ok,
+            "steps": steps, "unbalanced": b["unbalanced"]}
+
+
+def bulk_modulus(s0, s1, L0, L1):
+    """``K = (p1 - p0) / (-(V1 - V0) / V0)`` [Pa], p = -trace / 3."""
+    return float(-np.trace(s1 - s0) / 3.0 / -(np.prod(L1) / np.prod(L0) - 1.0))
+
+
+def shear_modulus(s0, s1, L0, L1):
+    """``mu = D(s_xx - s_yy) / (2 (eps_xx - eps_yy))`` [Pa], eps_aa = L1_a / L0_a - 1."""
+    eps = np.asarray(L1) / np.asarray(L0) - 1.0
+    return float(((s1[0, 0] - s1[1, 1]) - (s0[0, 0] - s0[1, 1])) / (2.0 * (eps[0] - eps[1])))
+
+
+ISOTROPIC, SHEAR = (-1.0, -1.0, -1.0), (1.0, -1.0, 0.0)
+
+
+def measuring_contacts(sim, material):
+    """Switch the contacts to the moduli's law: friction ``material.friction``, undamped, history
+    cleared (the frictionless static state is unchanged); servo off, cell fixed."""
+    sim.contacts.params = hertz_mindlin.Params(**contact_params(material, material["friction"], 1.0))
+    sim.contacts.history[:] = 0.0
+    sim.cell.servo = None
+    sim.cell.rate = np.zeros(3)
+
+
+def moduli(sim, deck, strain, progress=None):
+    """Bulk and shear moduli of the static packing of ``sim`` (cell fixed), affine and relaxed [Pa].
+
+    See the module docstring (step 5). Returns a dict with ``K_affine, K_relaxed, mu_affine,
+    mu_relaxed``, the ``strain`` used and the relaxations' convergence. Collective.
+    """
+    tol = deck["equilibrium"]
+    every, most = deck["preparation"]["check_every"], deck["moduli"]["max_relax_steps"]
+    measuring_contacts(sim, deck["material"])
+    out = {"strain": strain}
+    for name, sign, fn in (("K", ISOTROPIC, bulk_modulus), ("mu", SHEAR, shear_modulus)):
+        r = increment(sim, sign, strain, tol, every, most, progress, f"relaxing ({name})")
+        for kind in ("affine", "relaxed"):
+            out[f"{name}_{kind}"] = fn(r["s0"], r[kind], r["L0"], r["L1"])
+        out[f"{name}_relax_converged"] = r["converged"]
+        out[f"{name}_relax_steps"] = r["steps"]
+        out[f"{name}_relax_unbalanced"] = r["unbalanced"]
+    return out
+
+
+def sweep(comm, deck, pressures, progress=None):
+    """Prepare at each pressure (ascending, continuing the packing), measure, and the moduli.
+
+    Returns ``(rows, details, case)``: ``rows`` one dict per pressure with ``ROW_KEYS`` (SI),
+    ``details`` per pressure (equilibrium measures, rattlers, force distribution, strain...).
+    """
+    rows, details = [], []
+    case = None
+    for p0 in sorted(float(p) for p in pressures):
+        t0 = time.perf_counter()
+        if progress is not None:
+            progress.say(f"preparing at p0 = {p0:.6g} Pa", force=True)
+        case, info = prepare(comm, deck, p0, case, progress)
+        sim = case.sim
+        sim.elements.v[:] = 0.0
+        sim.elements.w[:] = 0.0
+        net = network(sim)
+        b = info["balance"]
+        row = {"p0": p0, "p": net["p"], "Z": net["Z"], "Z_no_rattlers": net["Z_no_rattlers"],
+               "solid_fraction": net["solid_fraction"], "K_affine": None, "K_relaxed": None,
+               "mu_affine": None, "mu_relaxed": None}
+        det = {"p0": p0, "converged": info["converged"], "steps": info["steps"],
+               "kinetic": b["kinetic"], "unbalanced": b["unbalanced"],
+               "unbalanced_max": b["unbalanced_max"], "pressure_error": net["p"] / p0 - 1.0,
+               "rattlers": net["rattlers"], "n_contacts": net["n_contacts"],
+               "mean_overlap_ratio": net["mean_overlap_ratio"],
+               "force_distribution": net["force_distribution"], "cell_length": sim.cell.length.tolist()}
+        if progress is not None:
+            progress.say(f"  equilibrium at p0 = {p0:.6g} Pa ({'converged' if info['converged'] else 'NOT converged'}"
+                         f", {info['steps']} steps, {time.perf_counter() - t0:.1f} s): p = {net['p']:.6g} Pa, "
+                         f"Z = {net['Z']:.4f}, Z without rattlers = {net['Z_no_rattlers']:.4f} "
+                         f"({net['rattlers']} rattlers), solid fraction {net['solid_fraction']:.5f}", force=True)
+        if deck["moduli"]["enabled"]:
+            t1 = time.perf_counter()
+            e = deck["moduli"]["strain"]
+            e = 0.01 * net["mean_overlap_ratio"] if e == "auto" else float(e)
+            mod = moduli(sim, deck, e, progress)
+            for k in ("K_affine", "K_relaxed", "mu_affine", "mu_relaxed"):
+                row[k] = mod[k]
+            det["moduli"] = mod
+            det["moduli_seconds"] = time.perf_counter() - t1
+            if progress is not None:
+                progress.say(f"  moduli (e = {e:.3g}): K = {mod['K_affine']:.6g} affine, "
+                             f"{mod['K_relaxed']:.6g} relaxed; mu = {mod['mu_affine']:.6g} affine, "
+                             f"{mod['mu_relaxed']:.6g} relaxed [Pa]", force=True)
+        det["seconds"] = time.perf_counter() - t0
+        rows.append(row)
+        details.append(det)
+    return rows, details, case
+
+
+def criteria_text(deck):
+    t = deck["equilibrium"]
+    return {"kinetic": f"E_k / (N p0 V_mean) < {t['kinetic_tolerance']:g} (V_mean: mean sphere volume)",
+            "force": f"mean_k |F_k| / mean_c |f_c| < {t['force_tolerance']:g} (unbalanced contact force "
+                     "on the elements over the mean contact force, drag excluded)",
+            "pressure": f"|p - p0| / p0 < {t['pressure_tolerance']:g} (preparation only)",
+            "rattlers": "elements with fewer than 4 force-carrying contacts, removed iteratively"}

@@ -1,0 +1,198 @@
+"""Isotropic preparation and elastic moduli (pardem.isotropic, python -m pardem.drivers.isotropic).
+
+Checks: a small bidisperse glass gas brought to static equilibrium at p0 meets the stated criteria
+(p within the tolerance of p0, kinetic energy and force balance), is isostatic once the rattlers are
+removed (Z about 6); the affine stress increment of one strain step equals an independent numpy
+computation from the positions (brute-force O(N^2) pairs, minimum image: Hertz normal force,
+Mindlin tangential spring kt = 8 G* a loaded by the affine tangential displacement, Coulomb cap),
+and to first order the linearised affine stiffness of the contact network (kn d^2, the pre-stress
+term fn / d from the rotation of the branch vectors, kt for shear); relaxed moduli do not exceed
+the affine ones; the driver on 2 ranks writes isotropic.json with exactly the required keys, and
+agrees with 1 rank to a measured tolerance (the gas compression is chaotic, so only statistically).
+"""
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from pardem import isotropic as iso
+from pardem.config import load_deck
+from pardem.parallel.communicator import Communicator
+from pardem.physics.hertz_mindlin import effective_moduli
+
+MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SMALL = os.path.join(ROOT, "drivers", "isotropic_small.toml")
+P0 = 1e6
+N = 200
+
+
+def small_deck(*extra):
+    return load_deck(iso.SCHEMA, SMALL, [f"sample.n={N}", f"preparation.pressures=[{P0}]"] + list(extra))
+
+
+@pytest.fixture(scope="module")
+def prepared():
+    deck = small_deck()
+    case, info = iso.prepare(Communicator(), deck, P0)
+    return deck, case, info
+
+
+def gather_state(sim):
+    e = sim.elements
+    n = e.n_owned
+    o = np.argsort(e.gid[:n])
+    return e.x[:n][o].copy(), e.radius[:n][o].copy(), sim.cell.length.copy()
+
+
+def oracle_stress(x, r, L, eps, e_star, g_star, mu, history=None):
+    """Love-Weber stress [3, 3] (tension positive) of the packing after the affine map
+    ``x -> (1 + eps) x`` (eps [3] diagonal), every pair by brute force, as one engine step
+    applying that strain sees it (tangential spring loaded from zero by the affine tangential
+    displacement ``eps d'``, capped at mu fn). Returns (stress, contact list for the linear check)."""
+    f = 1.0 + np.asarray(eps)
+    xs, Ls = x * f, L * f
+    i, j = np.triu_indices(len(x), 1)
+    d = xs[j] - xs[i]
+    d -= Ls * np.round(d / Ls)
+    dist = np.linalg.norm(d, axis=1)
+    delta = r[i] + r[j] - dist
+    t = delta > 0
+    d, dist, delta, ri, rj = d[t], dist[t], delta[t], r[i][t], r[j][t]
+    n = d / dist[:, None]
+    rs = ri * rj / (ri + rj)
+    a = np.sqrt(rs * delta)
+    fn = 4.0 / 3.0 * e_star * a * delta
+    s = (np.asarray(eps) * d)                      # the affine motion of j relative to i
+    st = s - np.einsum("ij,ij->i", s, n)[:, None] * n
+    h = 8.0 * g_star * a[:, None] * st             # force on i: dragged along with j
+    hm = np.linalg.norm(h, axis=1)
+    scale = np.where(hm > mu * fn, mu * fn / np.where(hm > 0, hm, 1.0), 1.0)
+    F = -fn[:, None] * n + h * scale[:, None]
+    stress = np.einsum("ca,cb->ab", d, F) / np.prod(Ls)
+    return stress, {"d": d, "n": n, "fn": fn, "kn": 2.0 * e_star * a, "kt": 8.0 * g_star * a, "V": np.prod(Ls),
+                    "delta": delta}
+
+
+def linear_affine_increment(c, eps, p_stress):
+    """First-order affine stress increment [3, 3] of the network ``c`` for the diagonal strain
+    ``eps``: D sigma = (1/V) sum [ (eps d) (x) F + d (x) DF ] - sigma tr(eps), with
+    DF = kn |d| (n.eps.n) n + (kt |d| - fn) (eps n - (n.eps.n) n)  (no sliding)."""
+    E = np.diag(eps)
+    d, n, fn, kn, kt = c["d"], c["n"], c["fn"], c["kn"], c["kt"]
+    ln = np.linalg.norm(d, axis=1)
+    en = n @ E
+    nen = np.einsum("ij,ij->i", en, n)
+    F = -fn[:, None] * n
+    dF = (kn * ln * nen)[:, None] * n + ((kt * ln - fn)[:, None]) * (en - nen[:, None] * n)
+    sums = np.einsum("ca,cb->ab", d @ E, F) + np.einsum("ca,cb->ab", d, dF)
+    return sums / c["V"] - p_stress * np.trace(E)
+
+
+def test_equilibrium_criteria_hold_at_p0(prepared):
+    deck, case, info = prepared
+    tol = deck["equilibrium"]
+    b = iso.balance(case.sim, P0)
+    assert info["converged"]
+    assert abs(b["pressure"] / P0 - 1.0) < tol["pressure_tolerance"]
+    assert b["kinetic"] < tol["kinetic_tolerance"]
+    assert b["unbalanced"] < tol["force_tolerance"]
+    net = iso.network(case.sim)
+    assert 0.62 < net["solid_fraction"] < 0.66                   # frictionless random packing
+    assert net["Z_no_rattlers"] >= 6.0 - 0.02                     # isostatic (6 + O(1/N))
+    assert net["Z_no_rattlers"] < 6.5 and net["Z"] <= net["Z_no_rattlers"]
+    assert abs(net["p"] / P0 - 1.0) < tol["pressure_tolerance"]
+    fd = net["force_distribution"]
+    w = np.diff(fd["edges"])
+    assert np.sum(np.array(fd["density"]) * w) == pytest.approx(1.0, abs=0.02)
+
+
+def test_rattler_rule_is_iterative():
+    # a tetrahedron-rich core 0..4 (each with 4 contacts), element 5 with 4 contacts of which one
+    # is to 6, element 6 with 1 contact: removing 6 leaves 5 with 3, so 5 goes too
+    core = [(a, b) for a in range(5) for b in range(a + 1, 5)]
+    extra = [(5, 0), (5, 1), (5, 2), (5, 6)]
+    gi, gj = np.array([p[0] for p in core + extra]), np.array([p[1] for p in core + extra])
+    alive, live = iso.remove_rattlers(7, gi, gj)
+    assert alive.tolist() == [True] * 5 + [False, False]
+    assert live.sum() == len(core)
+
+
+@pytest.mark.parametrize("name,sign", [("K", iso.ISOTROPIC), ("mu", iso.SHEAR)])
+def test_affine_response_against_numpy(name, sign):
+    deck = small_deck()
+    case, _ = iso.prepare(Communicator(), deck, P0)     # a fresh packing: no tangential history
+    sim = case.sim
+    mat = deck["material"]
+    iso.measuring_contacts(sim, mat)
+    x, r, L = gather_state(sim)
+    e_star, g_star = effective_moduli(iso.young_modulus(mat), mat["poisson"])
+    s_ref, c0 = oracle_stress(x, r, L, np.zeros(3), e_star, g_star, mat["friction"])
+    np.testing.assert_allclose(sim.global_stress(), s_ref, rtol=0, atol=1e-9 * P0)
+    strain = 0.01 * float(np.mean(c0["delta"] / np.linalg.norm(c0["d"], axis=1)))   # the "auto" rule
+    res = iso.increment(sim, sign, strain, deck["equilibrium"], 200, 50000)
+    eps = res["L1"] / res["L0"] - 1.0
+    assert np.allclose(eps, np.asarray(sign) * strain, rtol=1e-9, atol=1e-18)
+    s_aff, _ = oracle_stress(x, r, L, eps, e_star, g_star, mat["friction"])
+    fn = iso.bulk_modulus if name == "K" else iso.shear_modulus
+    measured = fn(res["s0"], res["affine"], res["L0"], res["L1"])
+    expect = fn(s_ref, s_aff, res["L0"], res["L1"])
+    assert measured == pytest.approx(expect, rel=1e-5)       # measured 1e-7
+    lin = fn(s_ref, s_ref + linear_affine_increment(c0, eps, s_ref), res["L0"], res["L1"])
+    assert measured == pytest.approx(lin, rel=0.01)          # second order: 3e-3 (K), 1e-4 (mu)
+    relaxed = fn(res["s0"], res["relaxed"], res["L0"], res["L1"])
+    assert res["converged"] and 0.0 < relaxed <= measured
+
+
+@pytest.fixture(scope="module")
+def driver_runs(tmp_path_factory):
+    d = tmp_path_factory.mktemp("iso")
+    out = {}
+    for ranks in (1, 2):
+        cmd = [MPIEXEC, "-n", str(ranks), sys.executable, "-m", "pardem.drivers.isotropic", "--config",
+               SMALL, "--set", f"sample.n={N}", "--pressures", "1e6,3e6", "--out", str(d / f"r{ranks}"),
+               "--quiet"]
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT)
+        assert p.returncode == 0, p.stderr[-3000:]
+        out[ranks] = (json.loads((d / f"r{ranks}" / "isotropic.json").read_text()), p.stdout,
+                      d / f"r{ranks}")
+    return out
+
+
+def test_driver_on_two_ranks_writes_the_rows(driver_runs):
+    data, stdout, path = driver_runs[2]
+    assert data["n_ranks"] == 2
+    assert [r["p0"] for r in data["rows"]] == [1e6, 3e6]
+    for row, det in zip(data["rows"], data["details"]):
+        assert set(row) == set(iso.ROW_KEYS)
+        assert det["converged"]
+        assert abs(row["p"] / row["p0"] - 1.0) < 1e-3
+        assert 0.62 < row["solid_fraction"] < 0.66
+        assert 5.98 < row["Z_no_rattlers"] < 6.5 and row["Z"] <= row["Z_no_rattlers"]
+        for m in ("K", "mu"):
+            assert 0.0 < row[f"{m}_relaxed"] <= row[f"{m}_affine"]
+        assert 1e7 < row["K_affine"] < 1e10
+    # moduli grow with pressure (Hertz: about p^(1/3))
+    assert data["rows"][1]["K_affine"] > data["rows"][0]["K_affine"]
+    assert "p0 [Pa]" in stdout
+    json.loads((path / "isotropic.json").read_text(), parse_constant=lambda c: pytest.fail(c))
+
+
+def test_one_and_two_ranks_agree_statistically(driver_runs):
+    a, b = driver_runs[1][0]["rows"], driver_runs[2][0]["rows"]
+    for ra, rb in zip(a, b):
+        assert rb["p"] == pytest.approx(ra["p"], rel=2e-3)
+        assert rb["solid_fraction"] == pytest.approx(ra["solid_fraction"], rel=0.01)
+        assert rb["Z_no_rattlers"] == pytest.approx(ra["Z_no_rattlers"], rel=0.03)
+        for k in ("K_affine", "mu_affine", "K_relaxed", "mu_relaxed"):
+            assert rb[k] == pytest.approx(ra[k], rel=0.1), k
+
+
+def test_bad_pressures_exit_2():
+    p = subprocess.run([sys.executable, "-m", "pardem.drivers.isotropic", "--pressures", "1e5,-3"],
+                       capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert p.returncode == 2 and "--pressures" in p.stderr and len(p.stderr.strip().splitlines()) == 1
