@@ -5,11 +5,20 @@ pattern 3: ``Params``, ``compute``). Pairs come from ``pardem.physics.neighbours
 at least one owned end, ordered by global id; a pair joined by an intact bond is left out (the
 bond carries the interaction).
 
-History (the tangential elastic force, [n_pairs, 3] N) belongs to a pair, not to rows: it is keyed
+History (the tangential elastic force, [n_pairs, 3] N; wider when the law says so through its
+``history_width(params)``, e.g. 9 columns for cemented Hertz-Mindlin contacts) belongs to a pair,
+not to rows: it is keyed
 by the gid pair ``key = gid_i * 2^31 + gid_j``. At every list rebuild the table of the previous
 list (plus what migration brought) is looked up by key, so the history survives rebuilds, element
 migration between ranks and checkpoints. Only pairs in contact carry a non-zero history, and only
-those travel.
+those travel (an intact cement keeps its row non-zero, so it travels too).
+
+Cemented pairs apart: a pair is listed while its centre distance is below ``R_i + R_j + skin`` at
+a rebuild, and computed until the next rebuild whatever its distance. An intact cement is kept
+listed as long as its gap stays below the skin; ``pardem.cement`` refuses parameters for which a
+cement could survive a gap of ``skin`` (its normal stretch at rupture ``sqrt(2 E_th / Sn)`` must be
+below the skin), so no intact cement is ever dropped by a rebuild. A fading (broken) cement whose
+spheres separate beyond the reach is dropped with its remaining fraction of force.
 
 A pair with one ghost end is computed by both ranks from bitwise-identical inputs, so both hold
 the same history; the energy and the Love-Weber sums count a pair on the rank owning its lower-gid
@@ -46,9 +55,12 @@ class Contacts:
     skin [m]: Verlet skin; cell: the ``PeriodicCell`` or None; reach [m]: the largest centre
     distance of a listed pair, ``2 R_max + skin`` over all ranks (it scales the rebuild margin of
     a deforming cell, so it must be the same on every rank). After ``rebuild``: ``i, j`` int32
-    rows, ``shifts`` int8 [n, 3] image of j, ``keys`` int64, ``history`` [n, 3] [N].
+    rows, ``shifts`` int8 [n, 3] image of j, ``keys`` int64, ``history`` [n, width] (``width``
+    from ``law.history_width(params)``, 3 when the law does not define it).
     After ``compute``: ``energy`` [J] and ``sums`` [10] (Love-Weber sums and contact count, this
-    rank's share; see ``contact_frame.add_love_weber``).
+    rank's share; see ``contact_frame.add_love_weber``). ``lost``: history rows the law marks
+    persistent (``law.persistent_rows``, e.g. intact cements) that a rebuild could not find again
+    in reach (0 when the parameters are checked, see the module docstring).
     """
 
     WIDTH = 3
@@ -56,6 +68,8 @@ class Contacts:
     def __init__(self, law, params, skin, cell=None, reach=0.0):
         self.law = law
         self.params = params
+        width_of = getattr(law, "history_width", None)
+        self.width = int(width_of(params)) if width_of is not None else self.WIDTH
         self.skin = float(skin)
         self.cell = cell
         periodic = (False,) * 3 if cell is None else tuple(bool(p) for p in cell.periodic)
@@ -66,14 +80,33 @@ class Contacts:
         self.shifts = np.zeros((0, 3), np.int8)
         self.shift = None
         self.keys = np.zeros(0, np.int64)
-        self.history = np.zeros((0, self.WIDTH))
+        self.history = np.zeros((0, self.width))
         self.energy = 0.0
         self.sums = np.zeros(10)
         self.builds = 0
+        self.lost = 0      # rows the law marks persistent (intact cements) dropped by rebuilds
         self.cut = float(reach)
         if cell is not None and cell.deforming and not self.cut > 0.0:
             raise ValueError("Contacts in a deforming cell need reach = 2 R_max + skin (> 0): it "
                              "scales the rebuild margin")
+
+    def set_params(self, params):
+        """Change the law's parameters between steps (e.g. friction after a frictionless
+        preparation, or the cement springs before cementation). The history is widened with zero
+        columns, or narrowed when the dropped columns are all zero (else ValueError)."""
+        width_of = getattr(self.law, "history_width", None)
+        width = int(width_of(params)) if width_of is not None else self.WIDTH
+        h = self.history
+        if width > h.shape[1]:
+            h = np.concatenate([h, np.zeros((len(h), width - h.shape[1]))], axis=1)
+        elif width < h.shape[1]:
+            if np.any(h[:, width:] != 0.0):
+                raise ValueError("contacts.set_params: the new law would drop a non-zero history "
+                                 "(e.g. intact cement)")
+            h = h[:, :width]
+        self.params = params
+        self.width = width
+        self.history = np.ascontiguousarray(h)
 
     # -- list -----------------------------------------------------------------------------
 
@@ -104,10 +137,17 @@ class Contacts:
         pairs, shifts = self.vl.pairs, self.vl.shifts
         keys = pair_keys(e.gid[pairs[:, 0]], e.gid[pairs[:, 1]])
         if bonds is not None and bonds.n:
-            keep = ~np.isin(keys, pair_keys(bonds.gid_i, bonds.gid_j))
+            acting = bonds.intact    # a broken bond's pair interacts by contact
+            keep = ~np.isin(keys, pair_keys(bonds.gid_i[acting], bonds.gid_j[acting]))
             pairs, shifts, keys = pairs[keep], shifts[keep], keys[keep]
+        table_keys = pair_keys(table["gid_i"], table["gid_j"])
+        keep = getattr(self.law, "persistent_rows", None)
+        if keep is not None and len(table_keys):
+            must = keep(table["history"])
+            if np.any(must):   # e.g. an intact cement whose spheres moved beyond the reach
+                self.lost += int(np.count_nonzero(~np.isin(np.unique(table_keys[must]), keys)))
         self.adopt(pairs[:, 0], pairs[:, 1], shifts, keys,
-                   lookup(keys, pair_keys(table["gid_i"], table["gid_j"]), table["history"], self.WIDTH))
+                   lookup(keys, table_keys, table["history"], self.width))
         if self.cell is not None:
             self.cell.strain_since_build = 0.0
 

@@ -5,6 +5,11 @@ Composes the pieces (no physics here): ``Elements`` from given centres and radii
 slab axis allowed), and a ``Simulation``; plus the checkpoint payload and the restart of such a
 case. Used by the GRAN benchmark, the granular tests and the granular drivers.
 
+Between steps a driver may switch the contact parameters (``set_contact_params``: e.g. friction
+after a frictionless preparation, or cemented Hertz-Mindlin contacts, whose history is wider) and
+the global damping (``set_viscous_damping``); both update the restart constants, so a checkpoint
+written afterwards restarts with them. Cementation itself is ``pardem.cement``.
+
 The contact history lives in the checkpoint as each rank's list (see ``pardem.io.checkpoint``), so
 a restart on the same number of ranks continues bit for bit; on another number of ranks the lists
 are rebuilt and the histories found again by their gid pairs.
@@ -58,9 +63,45 @@ def critical_time_step(law, params, radii, density):
     r_min = float(np.min(radii))
     if law == "hertz_mindlin":
         g = params.young / (2.0 * (1.0 + params.poisson))
-        return rayleigh_time_step(r_min, density, g, params.poisson)
+        dt_c = rayleigh_time_step(r_min, density, g, params.poisson)
+        if getattr(params, "cemented", False):
+            dt_c = min(dt_c, cement_time_step(params, r_min, density))
+        return dt_c
     m_min = density * 4.0 / 3.0 * np.pi * r_min**3
     return linear_contact_time_step(m_min, params.kn, params.zeta_n)
+
+
+def cement_time_step(params, r_min, density):
+    """``1 / omega`` [s] of two spheres of radius ``r_min`` [m] joined by the stiffer cement spring
+    alone (``omega^2 = 2 k / m``): the cement's share of the critical step (well above the
+    Rayleigh step for cements softer than the Hertz contact)."""
+    m = density * 4.0 / 3.0 * np.pi * float(r_min) ** 3
+    k = max(params.cement_normal, params.cement_tangential)
+    return float(np.sqrt(m / (2.0 * k)))
+
+
+def set_contact_params(case, params):
+    """Switch every rank's contact parameters (dict, same law) between steps, e.g. friction after a
+    frictionless preparation or the cement springs before ``pardem.cement.cement_contacts``; the
+    history is widened as the law needs, and the restart constants follow."""
+    c = case.constants
+    prm = law_params(c["law"], params)
+    sim = case.sim
+    radii = sim.elements.radius[:sim.elements.n_owned]
+    r_min = float(sim.comm.min(float(radii.min()) if len(radii) else np.inf))
+    dt_c = critical_time_step(c["law"], prm, np.array([r_min]), c["density"])
+    if not sim.dt <= dt_c:
+        raise ValueError(f"dt = {sim.dt:.6g} s is above the critical step {dt_c:.6g} s of the new "
+                         "contact parameters")
+    sim.contacts.set_params(prm)
+    c["params"] = dict(params)
+    c["dt_critical"] = dt_c
+
+
+def set_viscous_damping(case, rate):
+    """Change the global viscous damping C [1/s] between steps (the restart constants follow)."""
+    case.sim.viscous_damping = float(rate)
+    case.constants["viscous_damping"] = float(rate)
 
 
 def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, skin,

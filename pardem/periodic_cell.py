@@ -12,6 +12,11 @@ Servo-control of the mean stress (PHYSICS.md section 12): ``g = gain (p - p0)`` 
 cell expands when the packing is above the target pressure and shrinks below it; ``|g|`` is capped
 by ``max_rate``. Units: ``gain`` [1/(Pa s)], ``p0`` [Pa].
 
+Triaxial control (PHYSICS.md section 12; ``triaxial_servo``): the axial axis ``a`` deforms at an
+imposed rate (negative: compression), and each lateral axis ``b`` servos its own normal stress to the
+confining pressure, ``g_b = gain (-sigma_bb - pc)`` capped by ``max_rate``, so the lateral stress is
+held at ``sigma_bb = -pc`` (tension positive).
+
 The cell is pure bookkeeping over arrays; the reductions it needs (the global stress) are done by
 the caller.
 """
@@ -40,8 +45,9 @@ def _wrap(x, n, lo, length, periodic):
 class PeriodicCell:
     """Box ``lo`` [3] [m] with edges ``length`` [3] [m]; ``periodic`` [3] bools.
 
-    ``rate`` [3] [1/s]: imposed diagonal strain rate (along periodic axes only); ``servo``: None or
-    ``(p0 [Pa], gain [1/(Pa s)], max_rate [1/s])`` for an isotropic pressure control.
+    ``rate`` [3] [1/s]: imposed diagonal strain rate (along periodic axes only); ``servo``: None,
+    ``(p0 [Pa], gain [1/(Pa s)], max_rate [1/s])`` for an isotropic pressure control, or the dict of
+    ``triaxial_servo`` (axial rate imposed, lateral stresses held at ``-pc``).
     """
 
     def __init__(self, lo, length, periodic, rate=(0.0, 0.0, 0.0), servo=None):
@@ -53,7 +59,14 @@ class PeriodicCell:
             raise ValueError("cell.rate: a strain rate needs a periodic axis (non-periodic axes take 0)")
         if not np.all(self.length > 0.0):
             raise ValueError(f"cell.length must be positive along every axis, got {list(self.length)}")
-        self.servo = None if servo is None else tuple(float(v) for v in servo)
+        if servo is None:
+            self.servo = None
+        elif isinstance(servo, dict):
+            self.servo = self.triaxial_servo(**{k: v for k, v in servo.items() if k != "kind"})
+            if not np.all(self.periodic):
+                raise ValueError("a triaxial servo needs a cell periodic along every axis")
+        else:
+            self.servo = tuple(float(v) for v in servo)
         self.strain = np.zeros(3)   # accumulated log strain of the edges since the start
         self.strain_since_build = 0.0   # largest |strain| increment since the last list build
 
@@ -92,9 +105,38 @@ class PeriodicCell:
         """Image shifts of a pair list [n, 3] int8 in metres for the current edges."""
         return shifts * np.where(self.periodic, self.length, 0.0)
 
+    @staticmethod
+    def triaxial_servo(axis, axial_rate, pressure, gain, max_rate):
+        """The ``servo`` of a triaxial test: ``axis`` (0, 1, 2) deforms at ``axial_rate`` [1/s]
+        (negative: compression), the two other axes hold their normal stress at ``-pressure``
+        [Pa] (``pressure`` = pc > 0, compression) with ``gain`` [1/(Pa s)], ``|rate| <= max_rate``
+        [1/s]."""
+        axis = int(axis)
+        if axis not in (0, 1, 2):
+            raise ValueError(f"triaxial servo: axis = {axis}: expected 0, 1 or 2")
+        vals = {"axial_rate": axial_rate, "pressure": pressure, "gain": gain, "max_rate": max_rate}
+        for k, v in vals.items():
+            if not np.isfinite(float(v)):
+                raise ValueError(f"triaxial servo: {k} = {v}: expected a finite number")
+        if not (float(gain) > 0.0 and float(max_rate) > 0.0 and float(pressure) >= 0.0):
+            raise ValueError("triaxial servo: gain and max_rate must be > 0, pressure >= 0")
+        return {"kind": "triaxial", "axis": axis, "axial_rate": float(axial_rate),
+                "pressure": float(pressure), "gain": float(gain), "max_rate": float(max_rate)}
+
     def control(self, stress):
         """Servo update of ``rate`` from the global stress tensor [3, 3] [Pa] (tension positive)."""
         if self.servo is None:
+            return
+        if isinstance(self.servo, dict):
+            sv = self.servo
+            rate = np.empty(3)
+            for b in range(3):
+                if b == sv["axis"]:
+                    rate[b] = sv["axial_rate"]
+                else:
+                    g = sv["gain"] * (-float(stress[b][b]) - sv["pressure"])
+                    rate[b] = min(max(g, -sv["max_rate"]), sv["max_rate"])
+            self.rate = rate
             return
         p0, gain, max_rate = self.servo
         p = -float(np.trace(stress)) / 3.0
@@ -105,7 +147,8 @@ class PeriodicCell:
         """Everything needed to restart the cell (JSON friendly)."""
         return {"lo": self.lo.tolist(), "length": self.length.tolist(),
                 "periodic": self.periodic.tolist(), "rate": self.rate.tolist(),
-                "servo": None if self.servo is None else list(self.servo),
+                "servo": (None if self.servo is None else dict(self.servo)
+                          if isinstance(self.servo, dict) else list(self.servo)),
                 "strain": self.strain.tolist(), "strain_since_build": self.strain_since_build}
 
     @classmethod

@@ -125,6 +125,32 @@ def carry_history(hist, p, n0, n1, n2, spin_angle):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def carry_force(h0, h1, h2, n0, n1, n2, spin_angle):
+    """``carry_history`` on a force given as scalars ``(h0, h1, h2)`` [N] (for stores kept in other
+    columns, e.g. the cement's tangential force): normal component removed, turned by
+    ``spin_angle`` [rad] about unit ``n``, rescaled to its former magnitude. Returns the carried
+    force."""
+    mag2 = h0 * h0 + h1 * h1 + h2 * h2
+    if mag2 == 0.0:
+        return 0.0, 0.0, 0.0
+    hn = h0 * n0 + h1 * n1 + h2 * n2
+    h0 -= hn * n0
+    h1 -= hn * n1
+    h2 -= hn * n2
+    c0 = spin_angle * (n1 * h2 - n2 * h1)
+    c1 = spin_angle * (n2 * h0 - n0 * h2)
+    c2 = spin_angle * (n0 * h1 - n1 * h0)
+    h0 += c0
+    h1 += c1
+    h2 += c2
+    left2 = h0 * h0 + h1 * h1 + h2 * h2
+    if left2 == 0.0:
+        return 0.0, 0.0, 0.0
+    s = np.sqrt(mag2 / left2)
+    return h0 * s, h1 * s, h2 * s
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def coulomb_cap(f0, f1, f2, cap):
     """``f`` scaled back to magnitude ``cap`` [N] when it exceeds it (``cap >= 0``)."""
     mag2 = f0 * f0 + f1 * f1 + f2 * f2

@@ -47,6 +47,38 @@ Returned per call: the elastic energy ``sum 2/5 fn_el delta + |h|^2 / (2 kt)`` [
 energy of the current tangential spring (the incremental Mindlin law is path dependent, so it is a
 state measure, not a potential).
 
+Cemented contacts (PHYSICS.md section 8, G ch. 7)
+-------------------------------------------------
+With ``cement_normal = Sn > 0`` [N/m] (and ``cement_tangential = St >= 0`` [N/m]) the law is compiled
+with cement terms (``Params.cemented``; the plain kernel is unchanged and carries no cement cost).
+The history row then has ``history_width(params) = 9`` columns::
+
+    0:3  h        Mindlin tangential force on i [N] (as in the plain law)
+    3:6  f_ct     cement tangential force on i [N] (its own incremental history, carried in the
+                  rotating contact plane like h)
+    6    delta0   overlap at cementation [m] (> 0)
+    7    E_th     the pair's rupture energy [J] (> 0)
+    8    state    +1 intact; -s while fading (s in (0, 1] the remaining factor); 0 no cement
+
+A pair with ``state = 0`` is a plain Hertz-Mindlin contact (its cement columns are zero, so a
+broken-and-faded pair reduces to the 3-column plain state; only the zero columns remain). An intact
+cement adds springs in parallel, also in tension (``delta <= 0``, the spheres apart; the Hertz part
+is then zero and its history cleared)::
+
+    fn  += Sn (delta - delta0)                (repulsive positive; tension when delta < delta0)
+    f_ct = carry(f_ct) - St ds                no Coulomb cap on the cement
+    ft  += f_ct
+
+The Coulomb cap of ``h`` uses the Hertz part of ``fn`` only, so the total is exactly the plain law
+plus the cement. The cement breaks at the first step where its stored elastic energy
+``E_c = 1/2 Sn (delta - delta0)^2 + |f_ct|^2 / (2 St)`` exceeds ``E_th`` (that step still applies
+the full cement force; ``state <- -1``). Then, for ``cement_fade_time = t_f`` [s], each step lowers
+``s`` by ``dt / t_f`` and applies ``s Sn (delta - delta0)`` and ``s f_ct`` (``f_ct`` frozen at its
+value at rupture, carried in the contact plane); when ``s`` reaches 0 the cement columns are cleared
+(with ``t_f = 0`` on the step after rupture). The returned energy adds ``E_c`` of the intact
+cements (not of the fading ones). Thresholds and ``delta0`` are set by
+``pardem.cement`` at cementation, not here.
+
 References
 ----------
 Johnson K.L., Contact Mechanics, CUP 1985, sections 4.2 (Hertz) and 7.2 (Mindlin).
@@ -60,8 +92,15 @@ import numpy as np
 from numba import njit
 
 from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, add_love_weber, affine_motion,
-                                          check_pairs, clear_history, relative_motion, scatter_pair,
-                                          update_history, write_pair)
+                                          carry_force, check_pairs, clear_history, relative_motion,
+                                          scatter_pair, update_history, write_pair)
+
+WIDTH_PLAIN = 3        # history columns of a plain contact (the Mindlin force)
+WIDTH_CEMENTED = 9     # with cement: see the module docstring
+CEMENT_FORCE = 3       # columns 3:6, cement tangential force on i [N]
+CEMENT_DELTA0 = 6      # overlap at cementation [m]
+CEMENT_THRESHOLD = 7   # rupture energy [J]
+CEMENT_STATE = 8       # +1 intact, -s fading, 0 none
 
 
 def effective_moduli(young1, poisson1, young2=None, poisson2=None):
@@ -179,7 +218,9 @@ class Params:
         contacts join two different materials (default: the same).
     friction : Coulomb coefficient ``mu >= 0`` (0: frictionless).
     restitution : normal restitution coefficient in (0, 1]; 1 compiles the undamped kernel.
-    Derived (read only): e_star, g_star [Pa], gamma (damping coefficient), damped.
+    cement_normal, cement_tangential : cement springs Sn, St [N/m] (>= 0); Sn > 0 compiles the
+        cemented kernel (module docstring); cement_fade_time [s] (>= 0): fading after rupture.
+    Derived (read only): e_star, g_star [Pa], gamma (damping coefficient), damped, cemented.
     """
     young: float
     poisson: float
@@ -187,10 +228,14 @@ class Params:
     restitution: float = 1.0
     young2: float = None
     poisson2: float = None
+    cement_normal: float = 0.0
+    cement_tangential: float = 0.0
+    cement_fade_time: float = 0.0
     e_star: float = field(init=False)
     g_star: float = field(init=False)
     gamma: float = field(init=False)
     damped: bool = field(init=False)
+    cemented: bool = field(init=False)
 
     def __post_init__(self):
         for name in ("young", "young2"):
@@ -205,11 +250,30 @@ class Params:
             raise ValueError(f"hertz_mindlin.friction must be >= 0, got {self.friction}")
         if not (0.0 < self.restitution <= 1.0):
             raise ValueError(f"hertz_mindlin.restitution must be in (0, 1], got {self.restitution}")
+        for name in ("cement_normal", "cement_tangential", "cement_fade_time"):
+            val = getattr(self, name)
+            if not (np.isfinite(val) and val >= 0.0):
+                raise ValueError(f"hertz_mindlin.{name} must be a number >= 0, got {val}")
+        if self.cement_tangential > 0.0 and self.cement_normal == 0.0:
+            raise ValueError("hertz_mindlin.cement_tangential > 0 needs cement_normal > 0 [N/m]")
         e_star, g_star = effective_moduli(self.young, self.poisson, self.young2, self.poisson2)
         object.__setattr__(self, "e_star", e_star)
         object.__setattr__(self, "g_star", g_star)
         object.__setattr__(self, "gamma", hertz_damping_coefficient(self.restitution))
         object.__setattr__(self, "damped", self.restitution < 1.0)
+        object.__setattr__(self, "cemented", self.cement_normal > 0.0)
+
+
+def persistent_rows(history):
+    """Mask of the history rows a list rebuild must not drop: the intact cements (9 columns)."""
+    if history.shape[1] != WIDTH_CEMENTED:
+        return np.zeros(len(history), dtype=bool)
+    return history[:, CEMENT_STATE] > 0.0
+
+
+def history_width(params):
+    """Columns of a pair's history row: 3 (plain) or 9 (cemented, see the module docstring)."""
+    return WIDTH_CEMENTED if params.cemented else WIDTH_PLAIN
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -259,12 +323,100 @@ def hertz_mindlin_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, h
     return True, 0.4 * fn_el * delta + 0.5 * (h0 * h0 + h1 * h1 + h2 * h2) / kt
 
 
-def _pair_loop(damped, periodic, deforming):
-    """Loop over a pair list; ``damped``, ``periodic`` (image shifts are read) and ``deforming``
-    (the cell's strain rate is read) are frozen as compile-time constants."""
+@njit(cache=True, inline="always", error_model="numpy")
+def hertz_mindlin_cemented_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, hist, dt,
+                                e_star, g_star, mu, gamma, sn, st, fade_step, out, damped,
+                                deforming):
+    """``hertz_mindlin_pair`` plus the cement of the pair (history row ``hist[p]`` of 9 columns).
+
+    sn, st [N/m]: cement springs; fade_step: decrease of the fading factor per step
+    (``dt / t_fade``, or > 1 to drop a broken cement on the next step). Returns ``(interacting,
+    elastic energy [J])``; ``interacting`` is True when the spheres touch or a cement acts.
+    """
+    state = hist[p, 8]
+    d0 = (x[j, 0] - x[i, 0]) + s0
+    d1 = (x[j, 1] - x[i, 1]) + s1
+    d2 = (x[j, 2] - x[i, 2]) + s2
+    dist2 = d0 * d0 + d1 * d1 + d2 * d2
+    ri = radius[i]
+    rj = radius[j]
+    rsum = ri + rj
+    if state == 0.0 and dist2 >= rsum * rsum:
+        clear_history(hist, p)
+        return False, 0.0
+    dist = np.sqrt(dist2)
+    inv = 1.0 / dist
+    n0 = d0 * inv
+    n1 = d1 * inv
+    n2 = d2 * inv
+    delta = rsum - dist
+    li = ri - 0.5 * delta
+    lj = rj - 0.5 * delta
+    un, ut0, ut1, ut2, spin = relative_motion(i, j, v, w, n0, n1, n2, li, lj)
+    if deforming:
+        un, ut0, ut1, ut2 = affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1, n2, g0, g1, g2)
+    fn = 0.0
+    h0 = h1 = h2 = 0.0
+    energy = 0.0
+    if delta > 0.0:      # the Hertz-Mindlin part, exactly the plain law
+        a = np.sqrt(ri * rj / rsum * delta)
+        fn_el = 4.0 / 3.0 * e_star * a * delta
+        fn = fn_el
+        if damped:
+            m_star = mass[i] * mass[j] / (mass[i] + mass[j])
+            fn += gamma * np.sqrt(m_star * 2.0 * e_star * a) * un
+            if fn < 0.0:
+                fn = 0.0
+        kt = 8.0 * g_star * a
+        h0, h1, h2 = update_history(hist, p, n0, n1, n2, ut0, ut1, ut2, spin, dt, kt, mu * fn)
+        energy = 0.4 * fn_el * delta + 0.5 * (h0 * h0 + h1 * h1 + h2 * h2) / kt
+    else:
+        clear_history(hist, p)
+    if state != 0.0:     # the cement, intact (state > 0) or fading (state < 0)
+        c0, c1, c2 = carry_force(hist[p, 3], hist[p, 4], hist[p, 5], n0, n1, n2, spin * dt)
+        stretch = delta - hist[p, 6]
+        scale = 1.0
+        if state > 0.0:
+            k = st * dt
+            c0 -= k * ut0
+            c1 -= k * ut1
+            c2 -= k * ut2
+            e_c = 0.5 * sn * stretch * stretch
+            if st > 0.0:
+                e_c += 0.5 * (c0 * c0 + c1 * c1 + c2 * c2) / st
+            if e_c > hist[p, 7]:
+                hist[p, 8] = -1.0          # ruptured: full force this step, then fading
+        else:
+            scale = -state - fade_step
+            e_c = 0.0
+            if scale > 0.0:
+                hist[p, 8] = -scale
+            else:
+                scale = 0.0
+                c0 = c1 = c2 = 0.0
+                for col in range(3, 9):
+                    hist[p, col] = 0.0
+        hist[p, 3] = c0
+        hist[p, 4] = c1
+        hist[p, 5] = c2
+        if scale == 0.0 and delta <= 0.0:
+            return False, energy
+        fn += scale * sn * stretch
+        h0 += scale * c0
+        h1 += scale * c1
+        h2 += scale * c2
+        energy += e_c
+    write_pair(out, n0, n1, n2, fn, h0, h1, h2, li, lj)
+    return True, energy
+
+
+def _pair_loop(damped, periodic, deforming, cemented=False):
+    """Loop over a pair list; ``damped``, ``periodic`` (image shifts are read), ``deforming``
+    (the cell's strain rate is read) and ``cemented`` (the 9-column history with cement terms;
+    ``cement = (Sn, St, fade_step)`` is read) are frozen as compile-time constants."""
     @njit(cache=True, error_model="numpy")
     def loop(pi, pj, shift, rate, x, v, w, radius, mass, f, t, hist, dt, e_star, g_star, mu, gamma,
-             n_owned, acc):
+             n_owned, acc, cement):
         out = np.empty(9)
         energy = 0.0
         s0 = s1 = s2 = 0.0
@@ -275,6 +427,9 @@ def _pair_loop(damped, periodic, deforming):
         count = 0
         if deforming:
             g0, g1, g2 = rate[0], rate[1], rate[2]
+        sn = st = fade_step = 0.0
+        if cemented:
+            sn, st, fade_step = cement[0], cement[1], cement[2]
         for p in range(pi.shape[0]):
             i = pi[p]
             j = pj[p]
@@ -282,9 +437,15 @@ def _pair_loop(damped, periodic, deforming):
                 s0 = shift[p, 0]
                 s1 = shift[p, 1]
                 s2 = shift[p, 2]
-            touching, e = hertz_mindlin_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass,
-                                             hist, dt, e_star, g_star, mu, gamma, out, damped,
-                                             deforming)
+            if cemented:
+                touching, e = hertz_mindlin_cemented_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w,
+                                                          radius, mass, hist, dt, e_star, g_star,
+                                                          mu, gamma, sn, st, fade_step, out,
+                                                          damped, deforming)
+            else:
+                touching, e = hertz_mindlin_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius,
+                                                 mass, hist, dt, e_star, g_star, mu, gamma, out,
+                                                 damped, deforming)
             if touching:
                 scatter_pair(i, j, f, t, out)
                 if i < n_owned:   # counted once over the ranks (the owner of the lower gid)
@@ -328,17 +489,31 @@ def _all_pairs_loop(damped):
 
 
 @lru_cache(maxsize=None)
-def pair_loop(damped, periodic, deforming=False):
+def pair_loop(damped, periodic, deforming=False, cemented=False):
     """The compiled pair-list kernel for one sub-model choice (built once per choice).
 
     ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, e_star, g_star, mu, gamma,
-    n_owned, acc)`` adds the pair forces and torques to ``f``, ``t`` (owned and ghost rows alike),
-    updates ``history`` [n_pairs, 3], adds the Love-Weber sums of the pairs whose ``i`` is owned
-    to ``acc`` [10] (``contact_frame.add_love_weber``) and returns their elastic energy [J].
-    ``shift`` [n_pairs, 3] [m] and the cell's diagonal strain rate ``rate`` [3] [1/s] are read
-    only when ``periodic`` and ``deforming`` respectively.
+    n_owned, acc, cement)`` adds the pair forces and torques to ``f``, ``t`` (owned and ghost rows
+    alike), updates ``history`` [n_pairs, 3] (``cemented``: [n_pairs, 9]), adds the Love-Weber sums
+    of the pairs whose ``i`` is owned to ``acc`` [10] (``contact_frame.add_love_weber``) and
+    returns their elastic energy [J]. ``shift`` [n_pairs, 3] [m], the cell's diagonal strain rate
+    ``rate`` [3] [1/s] and ``cement`` [3] = (Sn [N/m], St [N/m], fade step) are read only when
+    ``periodic``, ``deforming`` and ``cemented`` respectively.
     """
-    return _pair_loop(bool(damped), bool(periodic), bool(deforming))
+    return _pair_loop(bool(damped), bool(periodic), bool(deforming), bool(cemented))
+
+
+NO_CEMENT = np.zeros(3)
+
+
+def cement_constants(params, dt):
+    """``[Sn, St, fade_step]`` for the cemented kernel (``fade_step = dt / t_fade``, 2 for
+    ``t_fade = 0``: the cement is dropped on the step after rupture)."""
+    if not params.cemented:
+        return NO_CEMENT
+    t_f = params.cement_fade_time
+    return np.array([params.cement_normal, params.cement_tangential,
+                     float(dt) / t_f if t_f > 0.0 else 2.0])
 
 
 @lru_cache(maxsize=None)
@@ -360,22 +535,34 @@ def compute(params, elements, i, j, history, dt, shift=None, rate=None, acc=None
     """Add the contact forces of the pairs ``(i[p], j[p])`` to ``elements.f``/``elements.t``.
 
     i, j : [n_pairs] rows (ordered by gid within each pair); history : [n_pairs, 3] tangential force
-    on i [N], updated in place (zeroed for pairs not in contact); dt [s] : step; shift : optional
+    on i [N] ([n_pairs, 9] with cement, module docstring), updated in place (zeroed for pairs not
+    in contact); dt [s] : step; shift : optional
     [n_pairs, 3] periodic image shift added to ``x_j`` [m]; rate : optional diagonal strain rate [3]
     [1/s] of the periodic cell (needs ``shift``); acc : optional [10] Love-Weber sums, added to.
     Returns the elastic energy [J] of the pairs whose ``i`` is owned.
     """
-    check_pairs(i, j, history, shift)
     e, p = elements, params
-    loop = pair_loop(p.damped, shift is not None, rate is not None and bool(np.any(rate != 0.0)))
+    if p.cemented:
+        if history.ndim != 2 or history.shape[1] != WIDTH_CEMENTED:
+            raise ValueError(f"cemented contacts need a history of {WIDTH_CEMENTED} columns, got "
+                             f"shape {history.shape}")
+        check_pairs(i, j, history[:, :3], shift)
+        cement = cement_constants(p, dt)
+    else:
+        check_pairs(i, j, history, shift)
+        cement = NO_CEMENT
+    loop = pair_loop(p.damped, shift is not None, rate is not None and bool(np.any(rate != 0.0)),
+                     p.cemented)
     return loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
                 e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history, float(dt), p.e_star, p.g_star,
-                p.friction, p.gamma, e.n_owned, np.zeros(10) if acc is None else acc)
+                p.friction, p.gamma, e.n_owned, np.zeros(10) if acc is None else acc, cement)
 
 
 def compute_all_pairs(params, elements, history_full, dt):
     """Brute-force version of ``compute`` over all row pairs, history ``[n, n, 3]`` (tests)."""
     e, p = elements, params
+    if p.cemented:
+        raise ValueError("compute_all_pairs: the brute-force oracle has no cement terms")
     return all_pairs_loop(p.damped)(e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history_full,
                                     float(dt), p.e_star, p.g_star, p.friction, p.gamma)
 
@@ -384,11 +571,18 @@ def single(params, elements, i, j, history_row, dt, shift=(0.0, 0.0, 0.0)):
     """Diagnostics of one pair, nothing modified: dict with ``force_i``, ``torque_i``, ``torque_j``,
     ``history`` (the value the step would store), ``energy`` and ``touching``."""
     e, p = elements, params
-    hist = np.array(history_row, dtype=np.float64).reshape(1, 3)
+    hist = np.array(history_row, dtype=np.float64).reshape(1, history_width(p))
     out = np.zeros(9)
     s = np.asarray(shift, dtype=np.float64)
-    touching, energy = _single_kernel(i, j, s, e.x, e.v, e.w, e.radius, e.mass, hist, float(dt),
-                                      p.e_star, p.g_star, p.friction, p.gamma, out, p.damped)
+    if p.cemented:
+        c = cement_constants(p, dt)
+        touching, energy = _single_cemented_kernel(i, j, s, e.x, e.v, e.w, e.radius, e.mass, hist,
+                                                   float(dt), p.e_star, p.g_star, p.friction,
+                                                   p.gamma, c[0], c[1], c[2], out, p.damped)
+    else:
+        touching, energy = _single_kernel(i, j, s, e.x, e.v, e.w, e.radius, e.mass, hist,
+                                          float(dt), p.e_star, p.g_star, p.friction, p.gamma, out,
+                                          p.damped)
     return {"touching": bool(touching), "force_i": out[0:3].copy(), "torque_i": out[3:6].copy(),
             "torque_j": out[6:9].copy(), "history": hist[0].copy(), "energy": float(energy)}
 
@@ -400,3 +594,15 @@ def _single_kernel(i, j, s, x, v, w, radius, mass, hist, dt, e_star, g_star, mu,
                                   hist, dt, e_star, g_star, mu, gamma, out, True, False)
     return hertz_mindlin_pair(0, i, j, s[0], s[1], s[2], 0.0, 0.0, 0.0, x, v, w, radius, mass, hist,
                               dt, e_star, g_star, mu, gamma, out, False, False)
+
+
+@njit(cache=True, error_model="numpy")
+def _single_cemented_kernel(i, j, s, x, v, w, radius, mass, hist, dt, e_star, g_star, mu, gamma, sn,
+                            st, fade_step, out, damped):
+    if damped:
+        return hertz_mindlin_cemented_pair(0, i, j, s[0], s[1], s[2], 0.0, 0.0, 0.0, x, v, w,
+                                           radius, mass, hist, dt, e_star, g_star, mu, gamma, sn,
+                                           st, fade_step, out, True, False)
+    return hertz_mindlin_cemented_pair(0, i, j, s[0], s[1], s[2], 0.0, 0.0, 0.0, x, v, w, radius,
+                                       mass, hist, dt, e_star, g_star, mu, gamma, sn, st,
+                                       fade_step, out, False, False)
