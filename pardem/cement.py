@@ -1,0 +1,97 @@
+"""Cementation of the current contacts of a granular case (PHYSICS.md section 8, G ch. 7).
+
+Every listed pair in contact (overlap ``delta > 0``) gets an intact cement: ``delta0 = delta`` (the
+springs start unstressed), a zero cement tangential force and a rupture energy ``E_th`` drawn from the
+uniform distribution on ``[mean - half_width, mean + half_width]`` [J]. The history layout is that of
+``pardem.physics.hertz_mindlin`` (cemented, 9 columns); the contacts must already use cemented
+parameters (``granular.set_contact_params``).
+
+Thresholds do not depend on the number of ranks or on the order of the lists: each is a function of
+``(seed, gid pair key)`` only, ``u = splitmix64(splitmix64(seed) ^ key) / 2^64`` (a counter-based
+generator: the SplitMix64 finaliser of Steele, Lea and Flood, OOPSLA 2014), so a pair held by two
+ranks (one end a ghost) gets bitwise the same cement on both, and 1 and N ranks agree.
+
+Reach: a cement must not survive a gap as large as the Verlet skin, or a list rebuild could drop the
+pair while intact (``pardem.contacts``). Its normal stretch at rupture is at most
+``sqrt(2 E_th,max / Sn)`` (the energy's normal part alone), so ``cement_contacts`` refuses
+``sqrt(2 (mean + half_width) / Sn) >= skin``.
+"""
+import numpy as np
+
+from pardem.physics import hertz_mindlin as hm
+
+_M64 = (1 << 64) - 1
+
+
+def _splitmix64(z):
+    """SplitMix64 finaliser of uint64 array ``z`` (wrapping arithmetic)."""
+    with np.errstate(over="ignore"):
+        z = (z + np.uint64(0x9E3779B97F4A7C15))
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        return z ^ (z >> np.uint64(31))
+
+
+def pair_uniform(seed, keys):
+    """Uniform numbers in [0, 1) [n], one per int64 pair key, a function of ``(seed, key)`` only."""
+    s = _splitmix64(np.array([int(seed) & _M64], dtype=np.uint64))[0]
+    z = _splitmix64(np.asarray(keys, dtype=np.int64).astype(np.uint64) ^ s)
+    return (z >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+
+
+def thresholds(seed, keys, mean, half_width):
+    """Rupture energies [J] of the pairs ``keys``: uniform on ``mean +- half_width``."""
+    return float(mean) + float(half_width) * (2.0 * pair_uniform(seed, keys) - 1.0)
+
+
+def max_stretch(params, mean, half_width):
+    """Largest normal stretch ``|delta - delta0|`` [m] an intact cement can reach."""
+    return float(np.sqrt(2.0 * (float(mean) + float(half_width)) / params.cement_normal))
+
+
+def check(params, mean, half_width, skin):
+    """ValueError unless the cement parameters are usable with a Verlet ``skin`` [m]."""
+    if not getattr(params, "cemented", False):
+        raise ValueError("cementation needs Hertz-Mindlin contacts with cement_normal > 0 [N/m]")
+    if not (np.isfinite(mean) and np.isfinite(half_width) and 0.0 <= half_width < mean):
+        raise ValueError(f"cement thresholds: mean = {mean} J, half_width = {half_width} J: expected "
+                         "0 <= half_width < mean (every threshold positive)")
+    x = max_stretch(params, mean, half_width)
+    if not x < float(skin):
+        raise ValueError(f"cement: a cement may stretch by sqrt(2 E_max / Sn) = {x:.4g} m before it "
+                         f"breaks, not below the Verlet skin {float(skin):.4g} m: a list rebuild could "
+                         "drop an intact cement (raise cement_normal or the skin, or lower the "
+                         "thresholds)")
+
+
+def cement_contacts(sim, mean, half_width, seed):
+    """Cement every listed pair in contact on this rank (call on every rank at the same step,
+    after a force evaluation). Returns the global number of cements made (each pair once)."""
+    c, e = sim.contacts, sim.elements
+    check(c.params, mean, half_width, c.skin)
+    if c.history.shape[1] != hm.WIDTH_CEMENTED:
+        raise ValueError("cement_contacts: the contacts' history is not cemented (set cemented "
+                         "parameters first)")
+    s = c.shift if c.shift is not None else np.zeros((len(c.i), 3))
+    d = (e.x[c.j] - e.x[c.i]) + s            # the kernels' grouping: the same bits on both ranks
+    dist = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+    delta = (e.radius[c.i] + e.radius[c.j]) - dist
+    glue = (delta > 0.0) & (c.history[:, hm.CEMENT_STATE] == 0.0)
+    h = c.history
+    h[glue, hm.CEMENT_FORCE:hm.CEMENT_FORCE + 3] = 0.0
+    h[glue, hm.CEMENT_DELTA0] = delta[glue]
+    h[glue, hm.CEMENT_THRESHOLD] = thresholds(seed, c.keys[glue], mean, half_width)
+    h[glue, hm.CEMENT_STATE] = 1.0
+    return int(sim.comm.sum(int(np.count_nonzero(glue & c.counted_once(e.n_owned)))))
+
+
+def cement_counts(sim):
+    """Global ``(intact, fading)`` cement counts (collective; each pair counted once)."""
+    c = sim.contacts
+    if c.history.shape[1] != hm.WIDTH_CEMENTED:
+        return 0, 0
+    once = c.counted_once(sim.elements.n_owned)
+    st = c.history[:, hm.CEMENT_STATE]
+    counts = sim.comm.sum(np.array([np.count_nonzero(once & (st > 0.0)),
+                                    np.count_nonzero(once & (st < 0.0))], dtype=np.float64))
+    return int(round(counts[0])), int(round(counts[1]))

@@ -1,0 +1,325 @@
+"""Triaxial test of a cemented granular packing in a periodic cell (PHYSICS.md sections 8, 11, 12).
+
+Protocol (all on ``pardem.granular`` cases, any number of ranks):
+
+1. **Preparation** (minimal; ``prepare``): ``N = per_edge^3`` spheres, radii uniform in
+   ``R (1 +- dispersity)``, on a jittered cubic lattice at solid fraction ``gas_fraction`` with random
+   velocities (``numpy.random.default_rng(seed)``: the same sample on any number of ranks), are
+   compressed isotropically by the cell's pressure servo ``deps/dt = gain (p - pc)`` (rate capped)
+   with global viscous damping and the preparation's friction (default 0: a dense packing), until
+   the pressure is within ``tolerance`` of ``pc`` and the kinetic energy below
+   ``kinetic_ratio`` times the contacts' elastic energy, on ``checks`` consecutive checks.
+2. **Cementation** (``cement``): the loading friction and the cement springs are switched on (the
+   forces do not change: the cement starts unstressed), the damping is removed and every contact
+   gets an intact cement with ``delta0`` its current overlap and a rupture energy drawn uniformly in
+   ``threshold_mean +- threshold_half_width`` (``pardem.cement``: a function of the seed and the gid
+   pair, so 1 and N ranks agree).
+3. **Triaxial loading** (``load``): the axial edge shortens at ``strain_rate`` (``dL/dt = -rate L``,
+   the cell's diagonal rate; the loading stops when ``1 - L / L0`` reaches ``strain``), the two
+   lateral edges are servo-controlled to hold their normal stress at ``-pc``
+   (``PeriodicCell.triaxial_servo``), no global damping (the contacts' restitution dissipates).
+
+Measures (``sample``; compression positive): axial strain ``eps_a = 1 - L_a / L_a0``, volumetric
+strain ``eps_v = 1 - V / V0`` (contraction positive), axial and lateral stresses ``sigma_a = -s_aa``,
+``sigma_l = -(s_bb + s_cc) / 2`` from the Love-Weber stress ``s`` (tension positive; contact and
+cement forces), deviator ``q = sigma_a - sigma_l``, mean stress ``p``, the cement counts (intact,
+fading) and the broken fraction ``1 - intact / N_cemented`` (each pair counted once, over all ranks),
+the coordination ``Z = 2 N_c / N`` (pairs that interact, cement in tension included).
+"""
+import math
+import time
+
+import numpy as np
+
+from pardem import cement as cementing
+from pardem import granular
+from pardem.config import Field, boolean, choice, number, positive
+from pardem.periodic_cell import PeriodicCell
+from pardem.simulation import InstabilityError  # noqa: F401  (re-exported for the driver)
+
+AXES = "xyz"
+
+SCHEMA = {
+    "sample": {
+        "per_edge": Field(10, number(lo=3, lo_open=False, integer=True),
+                          "spheres per edge of the initial lattice: N = per_edge^3"),
+        "radius": Field(0.5e-3, positive(), "mean sphere radius R [m]"),
+        "dispersity": Field(0.1, number(0.0, 0.3, lo_open=False), "radii uniform in R (1 +- dispersity)"),
+        "density": Field(2500.0, positive(), "grain density [kg/m^3]"),
+        "gas_fraction": Field(0.3, number(0.05, 0.45), "solid fraction of the initial gas"),
+        "gas_speed": Field(0.1, number(lo=0.0, lo_open=False), "r.m.s. speed of the initial gas per axis [m/s]"),
+        "seed": Field(1, number(lo=0, lo_open=False, integer=True),
+                      "seed of radii, jitter and velocities (the same sample on any number of ranks)"),
+    },
+    "contacts": {
+        "young": Field(70e9, positive(), "grains' Young modulus [Pa] (glass)"),
+        "poisson": Field(0.3, number(-1.0, 0.5), "grains' Poisson ratio"),
+        "friction": Field(0.3, number(lo=0.0, lo_open=False), "Coulomb friction of the loading"),
+        "restitution": Field(0.5, number(0.0, 1.0, hi_open=False),
+                             "normal restitution of the Hertz contacts (contact damping)"),
+    },
+    "cement": {
+        "normal_stiffness": Field(2e5, positive(), "cement normal spring Sn [N/m]"),
+        "tangential_stiffness": Field(2e5, number(lo=0.0, lo_open=False), "cement tangential spring St [N/m]"),
+        "threshold_mean": Field(2.5e-5, positive(), "mean rupture energy [J] (G: 5e-6 to 4.5e-5 J)"),
+        "threshold_half_width": Field(2.0e-5, number(lo=0.0, lo_open=False),
+                                      "half-width of the uniform rupture energies [J]"),
+        "fade_time": Field(1e-5, number(lo=0.0, lo_open=False),
+                           "time over which a broken cement's force fades to zero [s]"),
+        "seed": Field(11, number(lo=0, lo_open=False, integer=True), "seed of the rupture energies"),
+    },
+    "preparation": {
+        "friction": Field(0.0, number(lo=0.0, lo_open=False),
+                          "friction during the isotropic compression (0: dense packing)"),
+        "viscous_damping": Field(1e4, number(lo=0.0, lo_open=False), "global damping C [1/s]"),
+        "gain": Field(1e-4, positive(), "isotropic servo gain [1/(Pa s)] (gain * pc: the gas's "
+                                                  "initial rate, capped by max_rate)"),
+        "max_rate": Field(100.0, positive(), "cap of the servo's strain rate [1/s]"),
+        "tolerance": Field(0.01, number(0.0, 1.0), "relative pressure tolerance of the end state"),
+        "kinetic_ratio": Field(1e-4, positive(), "end state: kinetic / elastic contact energy below this"),
+        "checks": Field(3, number(lo=1, lo_open=False, integer=True),
+                        "consecutive checks (every check_every steps) meeting both criteria"),
+        "check_every": Field(200, number(lo=1, lo_open=False, integer=True), "steps between checks"),
+        "max_steps": Field(200000, number(lo=1, lo_open=False, integer=True),
+                           "the preparation stops here even if not converged (reported)"),
+    },
+    "loading": {
+        "confining_pressure": Field(1e6, positive(), "pc [Pa]: preparation pressure and lateral stress"),
+        "axis": Field("z", choice("x", "y", "z"), "axial (loading) axis"),
+        "strain_rate": Field(2.0, positive(), "axial strain rate [1/s] (compression)"),
+        "strain": Field(0.05, number(0.0, 0.5), "final axial strain"),
+        "gain": Field(3e-4, positive(), "lateral stress servo gain [1/(Pa s)]"),
+        "max_rate": Field(20.0, positive(), "cap of the lateral strain rates [1/s]"),
+    },
+    "run": {
+        "dt_fraction": Field(0.25, number(0.0, 1.0, hi_open=False),
+                             "time step as a fraction of the critical (Rayleigh / cement) step"),
+        "skin": Field(0.1, positive(), "Verlet skin in mean radii (must exceed the cement's "
+                                       "largest stretch)"),
+        "slab_axis": Field("x", choice("x", "y", "z"), "axis of the slabs of the ranks"),
+    },
+    "output": {
+        "samples": Field(200, number(lo=2, lo_open=False, integer=True), "rows of the loading series"),
+        "progress_seconds": Field(10.0, number(lo=0.0, lo_open=False),
+                                  "seconds between progress lines (0: none)"),
+        "plot": Field(True, boolean, "draw triaxial.png (needs matplotlib)"),
+    },
+}
+
+COLUMNS = ("step", "time", "eps_axial", "eps_vol", "q", "p", "sigma_axial", "sigma_lateral_1",
+           "sigma_lateral_2", "broken_fraction", "cements_intact", "cements_fading", "coordination",
+           "kinetic_energy")
+UNITS = ("1", "s", "1", "1", "Pa", "Pa", "Pa", "Pa", "Pa", "1", "1", "1", "1", "J")
+
+
+def sample_gas(deck):
+    """Centres [N, 3], radii [N], velocities [N, 3] and the cubic cell edge [m] of the initial gas."""
+    s = deck["sample"]
+    m, R = s["per_edge"], s["radius"]
+    rng = np.random.default_rng(s["seed"])
+    n = m**3
+    radii = R * rng.uniform(1.0 - s["dispersity"], 1.0 + s["dispersity"], n)
+    mean_volume = 4.0 / 3.0 * math.pi * float(np.mean(radii**3))
+    a = (mean_volume / s["gas_fraction"]) ** (1.0 / 3.0)
+    if a < 2.0 * R * (1.0 + s["dispersity"]) * 1.02:
+        raise ValueError(f"sample.gas_fraction = {s['gas_fraction']}: the lattice spacing {a:.4g} m "
+                         "leaves the largest spheres overlapping; lower it")
+    g = (np.arange(m) + 0.5) * a
+    X, Y, Z = np.meshgrid(g, g, g, indexing="ij")
+    pos = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
+    jitter = 0.5 * (a - 2.0 * R * (1.0 + s["dispersity"]))
+    pos += rng.uniform(-jitter, jitter, pos.shape)
+    vel = rng.normal(0.0, s["gas_speed"], pos.shape)
+    return pos, radii, vel, m * a
+
+
+def contact_params(deck, friction, cemented):
+    c, k = deck["contacts"], deck["cement"]
+    p = {"young": c["young"], "poisson": c["poisson"], "friction": float(friction),
+         "restitution": c["restitution"]}
+    if cemented:
+        p.update(cement_normal=k["normal_stiffness"], cement_tangential=k["tangential_stiffness"],
+                 cement_fade_time=k["fade_time"])
+    return p
+
+
+def time_step(deck):
+    """``dt_fraction`` of the critical step of the cemented contacts of the smallest sphere [s]."""
+    s = deck["sample"]
+    prm = granular.law_params("hertz_mindlin", contact_params(deck, 0.0, True))
+    r_min = s["radius"] * (1.0 - s["dispersity"])
+    return deck["run"]["dt_fraction"] * granular.critical_time_step(
+        "hertz_mindlin", prm, np.array([r_min]), s["density"])
+
+
+def check_deck(deck):
+    """ValueError for a deck that cannot run (cement reach against the skin, gas spacing)."""
+    k = deck["cement"]
+    prm = granular.law_params("hertz_mindlin", contact_params(deck, 0.0, True))
+    cementing.check(prm, k["threshold_mean"], k["threshold_half_width"],
+                    deck["run"]["skin"] * deck["sample"]["radius"])
+    sample_gas(deck)
+
+
+def build(comm, deck):
+    """The initial gas as a granular case with the isotropic servo at pc and viscous damping."""
+    check_deck(deck)
+    pos, radii, vel, edge = sample_gas(deck)
+    pr, ld = deck["preparation"], deck["loading"]
+    servo = (ld["confining_pressure"], pr["gain"], pr["max_rate"])
+    return granular.build(comm, pos, radii, deck["sample"]["density"], "hertz_mindlin",
+                          contact_params(deck, pr["friction"], False), np.zeros(3), np.full(3, edge),
+                          time_step(deck), deck["run"]["skin"] * deck["sample"]["radius"],
+                          servo=servo, viscous_damping=pr["viscous_damping"], velocities=vel,
+                          slab_axis=AXES.index(deck["run"]["slab_axis"]), balance_every=200)
+
+
+class _Progress:
+    def __init__(self, comm, seconds, label):
+        self.comm, self.seconds, self.label = comm, seconds, label
+        self.t0 = self.last = time.perf_counter()
+
+    def __call__(self, text):
+        now = time.perf_counter()
+        if self.seconds > 0 and now - self.last >= self.seconds and self.comm.is_root:
+            print(f"[{self.label} {now - self.t0:7.1f} s] {text}", flush=True)
+            self.last = now
+
+
+def prepare(case, deck, progress_seconds=0.0):
+    """Run the isotropic compression to equilibrium at pc; returns a dict of the end state."""
+    sim, pr = case.sim, deck["preparation"]
+    pc = deck["loading"]["confining_pressure"]
+    every = pr["check_every"]
+    met = 0
+    show = _Progress(sim.comm, progress_seconds, "preparation")
+    while sim.step_count < pr["max_steps"]:
+        sim.run(min(every, pr["max_steps"] - sim.step_count))
+        p = -float(np.trace(sim.stress)) / 3.0
+        ke = sim.kinetic_energy()
+        el = float(sim.comm.sum(sim.contact_energy))
+        ok = abs(p - pc) <= pr["tolerance"] * pc and ke <= pr["kinetic_ratio"] * max(el, 1e-300)
+        met = met + 1 if ok else 0
+        show(f"step {sim.step_count}: p = {p:.4g} Pa (target {pc:.4g}), kinetic/elastic = "
+             f"{ke / max(el, 1e-300):.3g}")
+        if met >= pr["checks"]:
+            break
+    return {"steps": sim.step_count, "converged": met >= pr["checks"],
+            "pressure": -float(np.trace(sim.stress)) / 3.0, "kinetic_energy": sim.kinetic_energy(),
+            "solid_fraction": solid_fraction(sim), "coordination": coordination(sim)}
+
+
+def solid_fraction(sim):
+    """Sphere volume over cell volume (overlap lenses not removed: they are ~1e-3 of it)."""
+    e = sim.elements
+    v = float(sim.comm.sum(4.0 / 3.0 * math.pi * float(np.sum(e.radius[:e.n_owned] ** 3))))
+    return v / sim.cell.volume
+
+
+def coordination(sim):
+    n = float(sim.comm.sum(float(sim.elements.n_owned)))
+    return 2.0 * float(sim.comm.sum(sim.contacts.sums[9])) / n
+
+
+def cement(case, deck):
+    """Switch to the loading's friction and cemented contacts, remove the damping, cement every
+    contact. Returns the global number of cements (also kept in ``case.constants``)."""
+    k = deck["cement"]
+    granular.set_contact_params(case, contact_params(deck, deck["contacts"]["friction"], True))
+    granular.set_viscous_damping(case, 0.0)
+    n = cementing.cement_contacts(case.sim, k["threshold_mean"], k["threshold_half_width"], k["seed"])
+    case.constants["cemented_pairs"] = n
+    return n
+
+
+def start_loading(case, deck):
+    """Replace the isotropic servo by the triaxial one; the reference state of the strains."""
+    sim, ld = case.sim, deck["loading"]
+    axis = AXES.index(ld["axis"])
+    sim.cell.servo = PeriodicCell.triaxial_servo(axis, -ld["strain_rate"], ld["confining_pressure"],
+                                                 ld["gain"], ld["max_rate"])
+    sim.cell.control(sim.stress)     # the first step already moves at the loading's rates
+    case.constants["triaxial_reference"] = {"length": sim.cell.length.tolist(), "axis": axis,
+                                            "step": sim.step_count}
+
+
+def loading_steps(case, deck):
+    """Steps from the start of the loading to the final axial strain."""
+    ld = deck["loading"]
+    # each step multiplies the axial edge by (1 - rate dt): eps_a = 1 - (1 - rate dt)^steps
+    return int(math.ceil(math.log1p(-ld["strain"]) / math.log1p(-ld["strain_rate"] * case.sim.dt)))
+
+
+def sample(case):
+    """One row of ``COLUMNS`` (collective)."""
+    sim = case.sim
+    ref = case.constants["triaxial_reference"]
+    axis = ref["axis"]
+    L0 = np.asarray(ref["length"])
+    L = sim.cell.length
+    s = sim.stress
+    lat = [b for b in range(3) if b != axis]
+    sig_a = -float(s[axis, axis])
+    sig_l = [-float(s[b, b]) for b in lat]
+    intact, fading = cementing.cement_counts(sim)
+    n0 = case.constants.get("cemented_pairs", 0)
+    return {"step": sim.step_count, "time": sim.time,
+            "eps_axial": 1.0 - L[axis] / L0[axis], "eps_vol": 1.0 - float(np.prod(L / L0)),
+            "q": sig_a - 0.5 * (sig_l[0] + sig_l[1]), "p": -float(np.trace(s)) / 3.0,
+            "sigma_axial": sig_a, "sigma_lateral_1": sig_l[0], "sigma_lateral_2": sig_l[1],
+            "broken_fraction": 1.0 - intact / n0 if n0 else 0.0, "cements_intact": intact,
+            "cements_fading": fading, "coordination": coordination(sim),
+            "kinetic_energy": sim.kinetic_energy()}
+
+
+class Sampler:
+    """Operation recording ``sample`` rows every ``every`` steps (and at the end of each run)."""
+
+    def __init__(self, case, every, rows=None, on_row=None):
+        self.case, self.every = case, int(every)
+        self.rows = [] if rows is None else rows
+        self.on_row = on_row
+
+    def __call__(self, sim):
+        if self.rows and self.rows[-1]["step"] == sim.step_count:
+            return
+        row = sample(self.case)
+        self.rows.append(row)
+        if self.on_row is not None:
+            self.on_row(row)
+
+
+def load(case, deck, steps=None, rows=None, operations=(), progress_seconds=0.0):
+    """Run the triaxial loading (``steps`` from its start; default to the final strain), sampling
+    ``output.samples`` rows. Returns the rows."""
+    sim = case.sim
+    total = loading_steps(case, deck) if steps is None else int(steps)
+    start = case.constants["triaxial_reference"]["step"]
+    every = max(1, total // deck["output"]["samples"])
+    show = _Progress(sim.comm, progress_seconds, "loading")
+
+    def report(row):
+        show(f"step {row['step'] - start}/{total}: eps_a = {row['eps_axial']:.4f}, q = {row['q']:.4g} Pa, "
+             f"eps_v = {row['eps_vol']:.4g}, broken = {row['broken_fraction']:.3f}")
+    sampler = Sampler(case, every, rows, report)
+    if not sampler.rows:
+        sampler(sim)
+    sim.run(start + total - sim.step_count, [sampler, *operations])
+    return sampler.rows
+
+
+def summary(rows, pc):
+    """Peak deviator and its strain, final values, the lateral stress error over the loading."""
+    q = np.array([r["q"] for r in rows])
+    ea = np.array([r["eps_axial"] for r in rows])
+    lat = np.array([[r["sigma_lateral_1"], r["sigma_lateral_2"]] for r in rows])
+    k = int(np.argmax(q))
+    settled = ea >= 0.1 * ea[-1] if ea[-1] > 0 else np.ones(len(rows), bool)
+    err = np.abs(lat[settled] - pc) / pc
+    return {"peak_deviator": float(q[k]), "strain_at_peak": float(ea[k]),
+            "peak_stress_ratio": float(q[k] / pc), "final_axial_strain": float(ea[-1]),
+            "final_deviator": float(q[-1]), "final_volumetric_strain": float(rows[-1]["eps_vol"]),
+            "max_contraction": float(max(r["eps_vol"] for r in rows)),
+            "final_broken_fraction": float(rows[-1]["broken_fraction"]),
+            "lateral_stress_error_mean": float(err.mean()) if err.size else None,
+            "lateral_stress_error_max": float(err.max()) if err.size else None}
