@@ -199,8 +199,9 @@ class Contacts:
 
     # -- forces ---------------------------------------------------------------------------
 
-    def compute(self, elements, dt):
-        """Add the contact forces to ``elements.f``, ``elements.t``; returns the energy [J]."""
+    def compute(self, elements, dt, with_energy=True):
+        """Add the contact forces to ``elements.f``, ``elements.t``; returns the energy [J] (NaN
+        when not ``with_energy``: the step's energy is then not computed)."""
         rate = None
         if self.periodic:
             if self.cell.deforming:
@@ -208,7 +209,8 @@ class Contacts:
             rate = self.cell.rate
         self.sums[:] = 0.0
         self.energy = float(self.law.compute(self.params, elements, self.i, self.j, self.history,
-                                             dt, self.shift, rate, self.sums))
+                                             dt, self.shift, rate, self.sums,
+                                             with_energy=with_energy))
         return self.energy
 
     def counted_once(self, n_owned):

@@ -80,8 +80,12 @@ class Simulation:
         self.bonds_broken_step = 0      # bonds broken by the last force call, counted on this rank
         self.pairs_freed = False        # a bond broke since the last contact list build
 
-    def compute_forces(self):
-        """Forces and torques of the current configuration (after ``f``, ``t`` were zeroed)."""
+    def compute_forces(self, with_energy=True):
+        """Forces and torques of the current configuration (after ``f``, ``t`` were zeroed).
+
+        Without ``with_energy`` the contact energy of this step is not computed (NaN): ``run``
+        asks for it only on the steps after which an operation runs.
+        """
         e, p = self.elements, self.plates
         if self.bonds is not None and self.bonds.n:
             self.bond_energy, broken, counted = compute_bonds(self.bonds, e)
@@ -97,7 +101,7 @@ class Simulation:
                                               self.dt, p.wall_force)
             p.force_local[:] = -np.einsum("wd,wd->w", p.wall_force[:2], normals[:2])
         if self.contacts is not None:
-            self.contact_energy = self.contacts.compute(e, self.dt)
+            self.contact_energy = self.contacts.compute(e, self.dt, with_energy)
         if self.viscous_damping > 0.0:
             damp_elements(e, self.viscous_damping)
 
@@ -113,7 +117,7 @@ class Simulation:
             return (self.domain.x_build,)
         return (self.contacts.reference_positions(),) if self.contacts is not None else ()
 
-    def step(self):
+    def step(self, with_energy=True):
         t0 = _time.perf_counter()
         e = self.elements
         kick_drift(e.x, e.v, e.w, e.q, e.rot, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned)
@@ -130,7 +134,7 @@ class Simulation:
         elif self.contacts is not None and (self.pairs_freed or self.contacts.needs_rebuild(e)):
             self.rebuild_contacts()
         t2 = _time.perf_counter()
-        self.compute_forces()
+        self.compute_forces(with_energy)
         if self.cell is not None and self.cell.servo is not None:
             self.stress = self.global_stress()
             self.cell.control(self.stress)
@@ -174,7 +178,9 @@ class Simulation:
             self.compute_forces()   # forces of the initial state for the first half kick
         end = self.step_count + int(n_steps)
         while self.step_count < end:
-            self.step()
+            after = self.step_count + 1
+            # the energies are computed (LAMMPS' eflag) only when an operation may read them
+            self.step(with_energy=after == end or any(after % op.every == 0 for op in operations))
             if self.step_count % self.check_every == 0 or self.step_count == end:
                 self.check_stability()
             for op in operations:

@@ -182,9 +182,10 @@ def linear_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, hist, dt
     return True, energy
 
 
-def _pair_loop(damped, periodic, deforming):
-    """Loop over a pair list; ``damped``, ``periodic`` (image shifts are read) and ``deforming``
-    (the cell's strain rate is read) are frozen as compile-time constants."""
+def _pair_loop(damped, periodic, deforming, with_energy=True):
+    """Loop over a pair list; ``damped``, ``periodic`` (image shifts are read), ``deforming``
+    (the cell's strain rate is read) and ``with_energy`` (the energy is summed) are frozen as
+    compile-time constants."""
     @njit(cache=True, error_model="numpy")
     def loop(pi, pj, shift, rate, x, v, w, radius, mass, f, t, hist, dt, kn, kt, mu, zeta_n, zeta_t,
              n_owned, acc):
@@ -210,7 +211,8 @@ def _pair_loop(damped, periodic, deforming):
             if touching:
                 scatter_pair(i, j, f, t, out)
                 if i < n_owned:   # counted once over the ranks (the owner of the lower gid)
-                    energy += e
+                    if with_energy:
+                        energy += e
                     b0 = (x[j, 0] - x[i, 0]) + s0
                     b1 = (x[j, 1] - x[i, 1]) + s1
                     b2 = (x[j, 2] - x[i, 2]) + s2
@@ -250,13 +252,13 @@ def _all_pairs_loop(damped):
 
 
 @lru_cache(maxsize=None)
-def pair_loop(damped, periodic, deforming=False):
+def pair_loop(damped, periodic, deforming=False, with_energy=True):
     """The compiled pair-list kernel for one sub-model choice (built once per choice).
 
     ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, kn, kt, mu, zeta_n, zeta_t,
     n_owned, acc)``: same contract as ``hertz_mindlin.pair_loop``.
     """
-    return _pair_loop(bool(damped), bool(periodic), bool(deforming))
+    return _pair_loop(bool(damped), bool(periodic), bool(deforming), bool(with_energy))
 
 
 @lru_cache(maxsize=None)
@@ -271,17 +273,20 @@ def cutoff(params, rmax):
     return 2.0 * float(rmax)
 
 
-def compute(params, elements, i, j, history, dt, shift=None, rate=None, acc=None):
+def compute(params, elements, i, j, history, dt, shift=None, rate=None, acc=None, with_energy=True):
     """Add the contact forces of the pairs ``(i[p], j[p])`` to ``elements.f``/``elements.t``.
 
-    Same arguments as ``hertz_mindlin.compute``. Returns the elastic energy [J].
+    Same arguments as ``hertz_mindlin.compute``. Returns the elastic energy [J] (NaN when not
+    ``with_energy``).
     """
     check_pairs(i, j, history, shift)
     e, p = elements, params
-    loop = pair_loop(p.damped, shift is not None, rate is not None and bool(np.any(rate != 0.0)))
-    return loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
-                e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history, float(dt), p.kn, p.kt,
-                p.friction, p.zeta_n, p.zeta_t, e.n_owned, np.zeros(10) if acc is None else acc)
+    loop = pair_loop(p.damped, shift is not None, rate is not None and bool(np.any(rate != 0.0)),
+                     with_energy)
+    energy = loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
+                  e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history, float(dt), p.kn, p.kt,
+                  p.friction, p.zeta_n, p.zeta_t, e.n_owned, np.zeros(10) if acc is None else acc)
+    return energy if with_energy else float("nan")
 
 
 def compute_all_pairs(params, elements, history_full, dt):
