@@ -27,56 +27,26 @@ References: PHYSICS.md sections 1, 2, 6 (W 4.5, 4.14).
 import math
 from dataclasses import asdict, dataclass
 
-from pardem.config import DeckError, Field, boolean, choice, number, positive, triple
+from pardem.config import DeckError, Field, boolean, choice, number, positive, same_or, strength, triple
 
 DIRECTIONS = "LRT"
 R_MAX = 2.0            # largest adimensional bond radius accepted (W's calibrated set has 1.14)
 SHEAR_PLANES = {"LR": (0, 1), "LT": (0, 2), "RT": (1, 2)}   # (shear direction a, gradient axis b)
 
 
-def _strength():
-    """Checker: a stress threshold [Pa] >= 0, or [L, R, T] all > 0 (0 = none)."""
-    inner = number(lo=0.0, lo_open=False)
-
-    def check(name, v):
-        if isinstance(v, list):
-            if len(v) != 3:
-                raise DeckError(f"{name} = {v!r}: expected one number >= 0 or a list of 3 numbers > 0 "
-                                f"(L, R, T)")
-            vals = tuple(inner(f"{name}[{k}]", x) for k, x in enumerate(v))
-            if min(vals) == 0.0 and max(vals) > 0.0:
-                raise DeckError(f"{name} = {v!r}: expected all three values > 0, or the single number 0 "
-                                f"for no threshold")
-            return vals
-        return inner(name, v)
-    check.allowed = "a number >= 0 or [L, R, T]"
-    return check
-
-
-def _same_or(inner):
-    def check(name, v):
-        if v == "same":
-            return "same"
-        try:
-            return inner(name, v)
-        except DeckError as err:
-            raise DeckError(f"{err} or \"same\" (E_R^D = E_T^D)") from None
-    return check
-
-
 # The targets deck of ``python -m pardem.drivers.calibrate`` (see drivers/calibrate_beech.toml).
 CALIBRATE_SCHEMA = {
     "targets": {
         "young_L": Field(9.47e9, positive(), "E_L^D, domain Young's modulus along L [Pa]"),
-        "young_R": Field("same", _same_or(positive()),
+        "young_R": Field("same", same_or(positive()),
                          "E_R^D along R [Pa]; \"same\" = E_T^D (then E_R^mu = E_T^mu, r_R = r_T)"),
         "young_T": Field(7.89e8, positive(), "E_T^D, domain Young's modulus along T [Pa]"),
         "shear": Field(7.7e8, positive(),
                        f"G^D, domain shear modulus [Pa]; r_k = sqrt(4/3 G^D / E_k^D) must be <= {R_MAX:g}"),
         "density": Field(720.0, positive(), "rho_D, density of the represented continuum [kg/m^3]"),
-        "tensile_strength": Field(0.0, _strength(),
+        "tensile_strength": Field(0.0, strength(),
                                   "sigma_max^D, tensile strength [Pa] (scalar or [L, R, T]); 0 = unbreakable"),
-        "shear_strength": Field(0.0, _strength(),
+        "shear_strength": Field(0.0, strength(),
                                 "tau_max^D, shear strength [Pa] (scalar or [L, R, T]); 0 = unbreakable"),
         "densification_stress": Field(0.0, number(lo=0.0, lo_open=False),
                                       "sigma0^D, densification threshold in compression along T [Pa]; "

@@ -7,21 +7,36 @@ import argparse
 import sys
 
 from pardem.config import DeckError, describe, load_deck
+from pardem.parallel.communicator import report_and_abort
+from pardem.simulation import InstabilityError
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_UNSTABLE = 0, 1, 2, 3
 
 
-def driver_parser(prog, description, schema, run_options=True):
-    """The common options; ``run_options`` adds ``--steps`` and ``--restart`` (time-stepping drivers)."""
-    p = argparse.ArgumentParser(
+class DriverParser(argparse.ArgumentParser):
+    """Bad options end with one line on rank 0 and exit code 2 on every rank."""
+    comm = None
+
+    def error(self, message):
+        fail_usage(self.comm, f"{message} (see --help)")
+
+
+def driver_parser(prog, description, schema, run_options=True, comm=None,
+                  deck_title="deck keys and defaults", out_default="", epilog=""):
+    """The common options (``--config``, ``--set``, ``--out``, ``--quiet``, ``--help``);
+    ``run_options`` adds ``--steps`` and ``--restart`` (drivers of one restartable run).
+    ``schema`` is described in the epilog under ``deck_title``, then ``epilog``."""
+    p = DriverParser(
         prog=prog, description=description,
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="deck keys and defaults:\n" + describe(schema) +
+        epilog=f"{deck_title}:\n" + describe(schema) + (f"\n\n{epilog}" if epilog else "") +
                "\n\nexit codes: 0 ok, 1 unexpected error, 2 bad input, 3 unstable run")
+    p.comm = comm
     p.add_argument("--config", metavar="FILE.toml", help="input deck (TOML); defaults fill the rest")
     p.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
                    dest="overrides", help="override one deck key (repeatable, applied after --config)")
-    p.add_argument("--out", metavar="DIR", help="output directory")
+    p.add_argument("--out", metavar="DIR",
+                   help="output directory" + (f" (default {out_default})" if out_default else ""))
     if run_options:
         p.add_argument("--steps", type=int, metavar="N",
                        help="total steps of the run from its start, also on restart (default: from the deck)")
@@ -31,6 +46,21 @@ def driver_parser(prog, description, schema, run_options=True):
                             "settings")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
+
+
+def run_driver(comm, run, args):
+    """``run(comm, args)`` with the drivers' failure policy: an unstable run ends with one line and
+    exit code 3 on every rank; any other exception is printed and aborts every rank (none hangs)."""
+    try:
+        return run(comm, args)
+    except SystemExit:
+        raise
+    except InstabilityError as err:
+        if comm.is_root:
+            sys.stderr.write(f"pardem: the run became unstable: {err}\n")
+        raise SystemExit(EXIT_UNSTABLE)
+    except Exception as exc:  # noqa: BLE001 - any other failure must end every rank
+        report_and_abort(comm, exc)
 
 
 def fail_usage(comm, message):

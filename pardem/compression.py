@@ -129,11 +129,6 @@ def build_case(comm, deck, steps=None, packing=None):
     elements = Elements.from_spheres(pos[rows], radii[rows], dom["density"], gids[rows])
     elements.n_owned = int(owned.sum())
     elements.flags[near_plate[rows]] |= FLAG_NEAR_PLATE
-    for key in ("tensile_strength", "shear_strength"):
-        v = np.atleast_1d(bd[key])
-        if np.any(v == 0.0) and np.any(v > 0.0):
-            raise DeckError(f"bonds.{key} = {list(v)}: expected one number, or three values all > 0 "
-                            f"(0 alone = unbreakable)")
     material = BeamMaterial(young=bd["young"], radius_ratio=bd["radius_ratio"],
                             poisson=bd["poisson"], damping=bd["damping"], law=bd["law"],
                             tensile_strength=bd["tensile_strength"], shear_strength=bd["shear_strength"],

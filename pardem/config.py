@@ -62,6 +62,30 @@ def number_or_triple(inner):
     return check
 
 
+def strength():
+    """Checker: a stress threshold [Pa] >= 0, or [L, R, T] all > 0 (0 = none)."""
+    inner = number(lo=0.0, lo_open=False)
+
+    def check(name, v):
+        if isinstance(v, list):
+            if len(v) != 3:
+                raise DeckError(f"{name} = {v!r}: expected one number >= 0 or a list of 3 numbers > 0 "
+                                f"(L, R, T)")
+            vals = tuple(inner(f"{name}[{k}]", x) for k, x in enumerate(v))
+            if min(vals) == 0.0 and max(vals) > 0.0:
+                raise DeckError(f"{name} = {v!r}: expected all three values > 0, or the single number 0 "
+                                f"for no threshold")
+            return vals
+        return inner(name, v)
+    check.allowed = "a number >= 0 or [L, R, T]"
+    return check
+
+
+def same_or(inner):
+    """Checker for "same" (E_R^D = E_T^D in the calibration targets) or a value passing ``inner``."""
+    return word_or("same", inner, "E_R^D = E_T^D")
+
+
 def triple(inner):
     def check(name, v):
         if not isinstance(v, list) or len(v) != 3:
@@ -80,15 +104,31 @@ def choice(*options, case_sensitive=False):
     return check
 
 
-def auto_or(inner):
-    """Checker for the string "auto" or a value passing ``inner``."""
+def word_or(word, inner, meaning=""):
+    """Checker for the string ``word`` or a value passing ``inner`` (``meaning`` explains the word
+    in the error message)."""
     def check(name, v):
-        if v == "auto":
-            return "auto"
+        if v == word:
+            return word
         try:
             return inner(name, v)
         except DeckError as err:
-            raise DeckError(f"{err} or \"auto\"") from None
+            raise DeckError(f"{err} or \"{word}\"{f' ({meaning})' if meaning else ''}") from None
+    return check
+
+
+def auto_or(inner):
+    """Checker for the string "auto" or a value passing ``inner``."""
+    return word_or("auto", inner)
+
+
+def number_list(inner, min_len=1):
+    """Checker for a list of at least ``min_len`` numbers, each passing ``inner``."""
+    def check(name, v):
+        if not isinstance(v, list) or len(v) < min_len:
+            raise DeckError(f"{name} = {v!r}: expected a list of at least {min_len} numbers, each "
+                            f"{inner.allowed}")
+        return [inner(f"{name}[{k}]", x) for k, x in enumerate(v)]
     return check
 
 
@@ -149,10 +189,10 @@ COMPRESS_SCHEMA = {
                               "bond radius / mean element radius, or [r_L, r_R, r_T]"),
         "poisson": Field(0.3, number(-1.0, 0.5), "bond Poisson ratio"),
         "damping": Field(0.2, number(0.0, 1.0, lo_open=False, hi_open=False), "bond damping ratio"),
-        "tensile_strength": Field(0.0, number_or_triple(number(lo=0.0, lo_open=False)),
+        "tensile_strength": Field(0.0, strength(),
                                   "bond tensile strength sigma_max = F / S [Pa], or [L, R, T] (all > 0, "
                                   "by the anisotropy law); 0 = unbreakable in tension"),
-        "shear_strength": Field(0.0, number_or_triple(number(lo=0.0, lo_open=False)),
+        "shear_strength": Field(0.0, strength(),
                                 "bond shear strength tau_max = |T| / S [Pa], or [L, R, T] (all > 0); "
                                 "0 = unbreakable in shear"),
         "densification_stress": Field(0.0, number(lo=0.0, lo_open=False),

@@ -64,7 +64,7 @@ import time
 import numpy as np
 
 from pardem import granular
-from pardem.config import DeckError, Field, boolean, choice, number, positive
+from pardem.config import DeckError, Field, auto_or, boolean, choice, number, number_list, positive
 from pardem.physics import hertz_mindlin
 from pardem.reducer import granular_measures
 
@@ -72,31 +72,11 @@ ROW_KEYS = ("p0", "p", "Z", "Z_no_rattlers", "solid_fraction", "K_affine", "K_re
             "mu_relaxed")
 
 
-def _number_list(inner, min_len=1):
-    def check(name, v):
-        if not isinstance(v, list) or len(v) < min_len:
-            raise DeckError(f"{name} = {v!r}: expected a list of at least {min_len} numbers, each "
-                            f"{inner.allowed}")
-        return [inner(f"{name}[{k}]", x) for k, x in enumerate(v)]
-    return check
-
-
-def _auto_or_number(inner):
-    def check(name, v):
-        if v == "auto":
-            return "auto"
-        try:
-            return inner(name, v)
-        except DeckError as err:
-            raise DeckError(f"{err} or \"auto\"") from None
-    return check
-
-
 SCHEMA = {
     "sample": {
         "n": Field(10000, number(lo=8, lo_open=False, integer=True), "number of spheres"),
-        "radii": Field([0.105e-3, 0.095e-3], _number_list(positive()), "sphere radii [m] (one per species)"),
-        "fractions": Field([0.5, 0.5], _number_list(positive()),
+        "radii": Field([0.105e-3, 0.095e-3], number_list(positive()), "sphere radii [m] (one per species)"),
+        "fractions": Field([0.5, 0.5], number_list(positive()),
                            "number fractions of the species (normalised; same length as radii)"),
         "density": Field(2500.0, positive(), "grain density [kg/m^3]"),
         "seed": Field(1, number(lo=0, lo_open=False, integer=True), "seed of the gas (centres and radii order)"),
@@ -111,7 +91,7 @@ SCHEMA = {
                              "normal restitution of the contacts during preparation (moduli: undamped)"),
     },
     "preparation": {
-        "pressures": Field([1e5, 1e6, 1e7, 1e8], _number_list(positive()),
+        "pressures": Field([1e5, 1e6, 1e7, 1e8], number_list(positive()),
                            "target pressures p0 [Pa], run from low to high"),
         "servo_rate": Field(4000.0, positive(),
                             "servo strain rate at a pressure error of 100 % [1/s] (gain = servo_rate / p0); "
@@ -130,7 +110,7 @@ SCHEMA = {
     },
     "moduli": {
         "enabled": Field(True, boolean, "measure the moduli at each pressure"),
-        "strain": Field("auto", _auto_or_number(number(0.0, 1e-2)),
+        "strain": Field("auto", auto_or(number(0.0, 1e-2)),
                         "affine strain increment e, or auto = 0.01 <delta / d> over the contacts"),
         "max_relax_steps": Field(200000, number(lo=1, lo_open=False, integer=True),
                                  "largest number of steps of each relaxation after an increment"),

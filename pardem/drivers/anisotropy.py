@@ -31,7 +31,6 @@ test.
 Exit codes: 0 done (failed measurements are flagged in the output, not errors), 1 unexpected error
 (all ranks stop), 2 bad input (one line naming the option or deck field and the allowed values).
 """
-import argparse
 import datetime
 import os
 import sys
@@ -42,32 +41,18 @@ import numpy as np
 
 import pardem
 from pardem import anisotropy_study as study
-from pardem.cli import EXIT_OK, fail_usage
+from pardem.cli import EXIT_OK, driver_parser, fail_usage, run_driver
 from pardem.compression import build_case
-from pardem.config import COMPRESS_SCHEMA, DeckError, describe, load_deck
+from pardem.config import COMPRESS_SCHEMA, DeckError, load_deck
 from pardem.io.summary import write_json
-from pardem.parallel.communicator import Communicator, report_and_abort
-
-
-class _Parser(argparse.ArgumentParser):
-    """Bad options end with one line and exit code 2 (rank 0 prints it)."""
-    comm = None
-
-    def error(self, message):
-        fail_usage(self.comm, f"{message} (see --help)")
+from pardem.parallel.communicator import Communicator
 
 
 def parser(comm=None):
-    p = _Parser(prog="python -m pardem.drivers.anisotropy", description=__doc__.split("\n\n")[0],
-                formatter_class=argparse.RawDescriptionHelpFormatter,
-                epilog="deck keys and defaults of the compress deck (the study's own defaults are in "
-                       "drivers/anisotropy_study.toml):\n" + describe(COMPRESS_SCHEMA) +
-                       "\n\nexit codes: 0 ok, 1 unexpected error, 2 bad input")
-    p.comm = comm
-    p.add_argument("--config", metavar="FILE.toml", help="input deck (default: the study's built-in deck)")
-    p.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[], dest="overrides",
-                   help="override one deck key (repeatable, applied after --config and --quick)")
-    p.add_argument("--out", metavar="DIR", help="output directory (default runs/anisotropy-<timestamp>)")
+    p = driver_parser("python -m pardem.drivers.anisotropy", __doc__.split("\n\n")[0], COMPRESS_SCHEMA,
+                      run_options=False, comm=comm, out_default="runs/anisotropy-<timestamp>",
+                      deck_title="deck keys and defaults of the compress deck (the study's own defaults "
+                                 "are in drivers/anisotropy_study.toml)")
     p.add_argument("--kinds", metavar="LIST", help="domain kinds, comma-separated: ordered, compact "
                                                     "(default: both)")
     p.add_argument("--laws", metavar="LIST", help=f"anisotropy laws (default: {','.join(study.LAWS)})")
@@ -84,7 +69,6 @@ def parser(comm=None):
     p.add_argument("--quick", action="store_true",
                    help="a small study for tests: boxes of 18 radii, ratios 1,5, 2 realisations, xi step 45")
     p.add_argument("--no-plot", action="store_true", dest="no_plot", help="do not write anisotropy.png")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
 
 
@@ -143,13 +127,7 @@ def make_plan(args, deck):
 
 def main(argv=None):
     comm = Communicator()
-    args = parser(comm).parse_args(argv)
-    try:
-        return run(comm, args)
-    except SystemExit:
-        raise
-    except Exception as exc:  # noqa: BLE001 - any other failure must end every rank
-        report_and_abort(comm, exc)
+    return run_driver(comm, run, parser(comm).parse_args(argv))
 
 
 def _case_comm():

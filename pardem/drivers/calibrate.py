@@ -37,11 +37,11 @@ import time
 
 import pardem
 from pardem import calibration as calib
-from pardem.cli import EXIT_OK, EXIT_UNSTABLE, driver_parser, fail_usage, read_deck
+from pardem.cli import EXIT_OK, EXIT_UNSTABLE, driver_parser, fail_usage, read_deck, run_driver
 from pardem.compression import SeriesSampler, build_case, measure
 from pardem.config import COMPRESS_SCHEMA, DeckError, check_deck
 from pardem.io.summary import write_json
-from pardem.parallel.communicator import Communicator, report_and_abort
+from pardem.parallel.communicator import Communicator
 from pardem.parallel.slab_comm import DecompositionError
 from pardem.shear_test import run_shear
 from pardem.simulation import InstabilityError
@@ -51,9 +51,9 @@ STRENGTH_KEYS = ("tensile_strength", "shear_strength", "densification_stress", "
 ROUND_TRIP_TOLERANCE = 0.02     # E_L^D and E_T^D must come back within 2 %
 
 
-def parser():
+def parser(comm=None):
     p = driver_parser("python -m pardem.drivers.calibrate", __doc__.split("\n\n")[0], calib.CALIBRATE_SCHEMA,
-                      run_options=False)
+                      run_options=False, comm=comm)
     p.add_argument("--verify", action="store_true",
                    help="measure E_L^D, E_T^D (compressions) and G^D (simple shear) of the calibrated "
                         "ordered domain and report them against the targets")
@@ -63,14 +63,8 @@ def parser():
 
 
 def main(argv=None):
-    args = parser().parse_args(argv)
     comm = Communicator()
-    try:
-        return run(comm, args)
-    except SystemExit:
-        raise
-    except Exception as exc:  # noqa: BLE001 - any other failure must end every rank
-        report_and_abort(comm, exc)
+    return run_driver(comm, run, parser(comm).parse_args(argv))
 
 
 def strengths_supported():

@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 import pardem
-from pardem.cli import EXIT_UNSTABLE, driver_parser, fail_usage, read_deck
+from pardem.cli import EXIT_UNSTABLE, driver_parser, fail_usage, read_deck, run_driver
 from pardem.compression import (CheckpointWriter, Progress, SeriesSampler, build_case, loading_warning,
                                 measure, restore_case)
 from pardem.io import checkpoint
@@ -24,7 +24,7 @@ from pardem.config import COMPRESS_SCHEMA, DeckError
 from pardem.io.series import SeriesCSV
 from pardem.io.series_h5 import SeriesH5
 from pardem.io.summary import write_json
-from pardem.parallel.communicator import Communicator, report_and_abort
+from pardem.parallel.communicator import Communicator
 from pardem.parallel.slab_comm import DecompositionError
 from pardem.simulation import FaultInjection, InstabilityError
 
@@ -40,15 +40,10 @@ def _default_out(comm, restart):
 
 
 def main(argv=None):
-    args = driver_parser("python -m pardem.drivers.compress", __doc__.split("\n\n")[0],
-                         COMPRESS_SCHEMA).parse_args(argv)
     comm = Communicator()
-    try:
-        return run(comm, args)
-    except SystemExit:
-        raise
-    except Exception as exc:  # noqa: BLE001 - any other failure must end every rank
-        report_and_abort(comm, exc)
+    args = driver_parser("python -m pardem.drivers.compress", __doc__.split("\n\n")[0],
+                         COMPRESS_SCHEMA, comm=comm).parse_args(argv)
+    return run_driver(comm, run, args)
 
 
 def run(comm, args):

@@ -21,7 +21,6 @@ Exit codes: 0 done (a pressure that did not reach equilibrium within ``preparati
 flagged ``converged: false`` in ``details`` and warned about), 1 unexpected error (all ranks stop),
 2 bad input (one line naming the option or deck field), 3 the run became unstable.
 """
-import argparse
 import datetime
 import os
 import sys
@@ -29,49 +28,23 @@ import time
 
 import pardem
 from pardem import isotropic as iso
-from pardem.cli import EXIT_OK, EXIT_UNSTABLE, fail_usage
-from pardem.config import DeckError, describe, load_deck
+from pardem.cli import EXIT_OK, driver_parser, fail_usage, run_driver
+from pardem.config import DeckError, load_deck
 from pardem.io.summary import write_json
-from pardem.parallel.communicator import Communicator, report_and_abort
-from pardem.simulation import InstabilityError
-
-
-class _Parser(argparse.ArgumentParser):
-    comm = None
-
-    def error(self, message):
-        fail_usage(self.comm, f"{message} (see --help)")
+from pardem.parallel.communicator import Communicator
 
 
 def parser(comm=None):
-    p = _Parser(prog="python -m pardem.drivers.isotropic", description=__doc__.split("\n\n")[0],
-                formatter_class=argparse.RawDescriptionHelpFormatter,
-                epilog="deck keys and defaults:\n" + describe(iso.SCHEMA) +
-                       "\n\nexit codes: 0 ok, 1 unexpected error, 2 bad input, 3 unstable run")
-    p.comm = comm
-    p.add_argument("--config", metavar="FILE.toml", help="input deck (TOML); defaults fill the rest")
-    p.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[], dest="overrides",
-                   help="override one deck key (repeatable, applied after --config)")
+    p = driver_parser("python -m pardem.drivers.isotropic", __doc__.split("\n\n")[0], iso.SCHEMA,
+                      run_options=False, comm=comm, out_default="runs/isotropic-<timestamp>")
     p.add_argument("--pressures", metavar="P1,P2,...",
                    help="target pressures p0 [Pa], comma-separated (overrides preparation.pressures)")
-    p.add_argument("--out", metavar="DIR", help="output directory (default runs/isotropic-<timestamp>)")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
 
 
 def main(argv=None):
     comm = Communicator()
-    args = parser(comm).parse_args(argv)
-    try:
-        return run(comm, args)
-    except SystemExit:
-        raise
-    except InstabilityError as err:
-        if comm.is_root:
-            sys.stderr.write(f"pardem: the run became unstable: {err}\n")
-        raise SystemExit(EXIT_UNSTABLE)
-    except Exception as exc:  # noqa: BLE001 - any other failure must end every rank
-        report_and_abort(comm, exc)
+    return run_driver(comm, run, parser(comm).parse_args(argv))
 
 
 def _pressures(text):

@@ -21,7 +21,6 @@ matplotlib).
 Exit codes: 0 done, 1 unexpected error (all ranks stop), 2 bad input (one line naming the field),
 3 the run became unstable.
 """
-import argparse
 import csv
 import datetime
 import os
@@ -30,46 +29,24 @@ import time
 
 import pardem
 from pardem import triaxial
-from pardem.cli import EXIT_OK, EXIT_UNSTABLE, fail_usage
-from pardem.config import DeckError, describe, load_deck
+from pardem.cli import EXIT_OK, EXIT_UNSTABLE, driver_parser, fail_usage, run_driver
+from pardem.config import DeckError, load_deck
 from pardem.io.summary import write_json
-from pardem.parallel.communicator import Communicator, report_and_abort
+from pardem.parallel.communicator import Communicator
 from pardem.simulation import InstabilityError
 
 
-class _Parser(argparse.ArgumentParser):
-    """Bad options end with one line and exit code 2 (rank 0 prints it)."""
-    comm = None
-
-    def error(self, message):
-        fail_usage(self.comm, f"{message} (see --help)")
-
-
 def parser(comm=None):
-    p = _Parser(prog="python -m pardem.drivers.triaxial", description=__doc__.split("\n\n")[0],
-                formatter_class=argparse.RawDescriptionHelpFormatter,
-                epilog="deck keys and defaults (drivers/triaxial_cemented.toml):\n" +
-                       describe(triaxial.SCHEMA) +
-                       "\n\noutputs: DIR/triaxial.csv, DIR/triaxial.json, DIR/triaxial.png"
-                       "\nexit codes: 0 ok, 1 unexpected error, 2 bad input, 3 unstable run")
-    p.comm = comm
-    p.add_argument("--config", metavar="FILE.toml", help="input deck (TOML); defaults fill the rest")
-    p.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[], dest="overrides",
-                   help="override one deck key (repeatable, applied after --config)")
-    p.add_argument("--out", metavar="DIR", help="output directory (default runs/triaxial-<timestamp>)")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p = driver_parser("python -m pardem.drivers.triaxial", __doc__.split("\n\n")[0], triaxial.SCHEMA,
+                      run_options=False, comm=comm, out_default="runs/triaxial-<timestamp>",
+                      deck_title="deck keys and defaults (drivers/triaxial_cemented.toml)",
+                      epilog="outputs: DIR/triaxial.csv, DIR/triaxial.json, DIR/triaxial.png")
     return p
 
 
 def main(argv=None):
     comm = Communicator()
-    args = parser(comm).parse_args(argv)
-    try:
-        return run(comm, args)
-    except SystemExit:
-        raise
-    except Exception as exc:  # noqa: BLE001 - any other failure must end every rank
-        report_and_abort(comm, exc)
+    return run_driver(comm, run, parser(comm).parse_args(argv))
 
 
 def say(comm, quiet, text):

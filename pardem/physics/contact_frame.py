@@ -100,28 +100,7 @@ def carry_history(hist, p, n0, n1, n2, spin_angle):
     a rigid rotation of the pair never changes the magnitude of the stored force. Returns the
     carried force ``(h0, h1, h2)``.
     """
-    h0 = hist[p, 0]
-    h1 = hist[p, 1]
-    h2 = hist[p, 2]
-    mag2 = h0 * h0 + h1 * h1 + h2 * h2
-    if mag2 == 0.0:
-        return 0.0, 0.0, 0.0
-    hn = h0 * n0 + h1 * n1 + h2 * n2
-    h0 -= hn * n0
-    h1 -= hn * n1
-    h2 -= hn * n2
-    # turn about n: h += angle n x h (h is now normal to n)
-    c0 = spin_angle * (n1 * h2 - n2 * h1)
-    c1 = spin_angle * (n2 * h0 - n0 * h2)
-    c2 = spin_angle * (n0 * h1 - n1 * h0)
-    h0 += c0
-    h1 += c1
-    h2 += c2
-    left2 = h0 * h0 + h1 * h1 + h2 * h2
-    if left2 == 0.0:   # the stored force was along the new normal: nothing is left in the plane
-        return 0.0, 0.0, 0.0
-    s = np.sqrt(mag2 / left2)
-    return h0 * s, h1 * s, h2 * s
+    return carry_force(hist[p, 0], hist[p, 1], hist[p, 2], n0, n1, n2, spin_angle)
 
 
 @njit(cache=True, inline="always", error_model="numpy")
