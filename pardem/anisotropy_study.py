@@ -53,7 +53,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from pardem.compression import SeriesSampler, build_case, measure
-from pardem.config import COMPRESS_SCHEMA, DeckError, check_deck
+from pardem.config import COMPRESS_SCHEMA, DeckError, check_deck, raw_deck
 from pardem.domains.compact import compact_packing
 from pardem.simulation import InstabilityError
 
@@ -178,15 +178,6 @@ def assign(groups, n_ranks, plan):
     return [sorted(m) for m in mine]
 
 
-def _raw(value):
-    """A checked deck back to TOML-like values (tuples -> lists), so it can be checked again."""
-    if isinstance(value, dict):
-        return {k: _raw(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_raw(v) for v in value]
-    return value
-
-
 def bond_moduli(deck):
     """(E_R, E_T) [Pa] of the deck's ``bonds.young`` (a number means E_R = E_T)."""
     E = np.broadcast_to(np.asarray(deck["bonds"]["young"], dtype=float), (3,))
@@ -196,7 +187,7 @@ def bond_moduli(deck):
 def case_deck(deck, plan, case, plate_speed=None):
     """The checked compress deck of ``case``: the study deck with the case's kind, seed, tilt, law,
     bond moduli [ratio E_R, E_R, E_T], loading axis and (if given) plate speed [m/s]."""
-    raw = _raw(copy.deepcopy(deck))
+    raw = raw_deck(copy.deepcopy(deck))
     raw["domain"]["kind"] = case.kind
     raw["domain"]["tilt_deg"] = case.tilt_deg
     if case.kind != "ordered":

@@ -307,6 +307,13 @@ def _plain(v):
     return [_plain(x) for x in v] if isinstance(v, (list, tuple)) else v
 
 
+def raw_deck(value):
+    """A checked deck back to TOML-like values (tuples -> lists), so it can be checked again."""
+    if isinstance(value, dict):
+        return {k: raw_deck(v) for k, v in value.items()}
+    return _plain(value)
+
+
 def defaults(schema):
     return {s: {k: copy.deepcopy(f.default) for k, f in fields.items()} for s, fields in schema.items()}
 

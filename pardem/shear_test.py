@@ -42,7 +42,7 @@ import numpy as np
 
 from pardem.calibration import SHEAR_PLANES, as_lrt, lattice_shear_modulus
 from pardem.compression import build_case
-from pardem.config import COMPRESS_SCHEMA, DeckError, check_deck
+from pardem.config import COMPRESS_SCHEMA, DeckError, check_deck, raw_deck
 from pardem.reducer import gradient_from_sums, strain_sums
 from pardem.state import FLAG_NEAR_PLATE
 
@@ -108,17 +108,9 @@ class ShearSampler:
 
 def shear_deck(deck, plane):
     """The compress deck of the shear test: ``deck`` with its plates normal to the gradient axis."""
-    raw = _raw(copy.deepcopy(deck))
+    raw = raw_deck(copy.deepcopy(deck))
     raw["loading"]["axis"] = "xyz"[SHEAR_PLANES[plane][1]]
     return check_deck(COMPRESS_SCHEMA, raw)
-
-
-def _raw(value):
-    if isinstance(value, dict):
-        return {k: _raw(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_raw(v) for v in value]
-    return value
 
 
 def run_shear(comm, deck, plane="LT", strain=0.002, transits=8.0, shear_estimate=None, drive="faces"):

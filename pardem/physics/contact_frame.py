@@ -40,6 +40,30 @@ from pardem.physics.pair_loads import scatter_pair  # noqa: F401  (re-exported f
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def pair_separation(i, j, s0, s1, s2, x, radius):
+    """Branch vector ``d = x_j + s - x_i`` [m], ``|d|^2`` and the radii of pair (i, j).
+
+    Returns ``(d0, d1, d2, dist2, ri, rj, ri + rj)``.
+    """
+    d0 = (x[j, 0] - x[i, 0]) + s0
+    d1 = (x[j, 1] - x[i, 1]) + s1
+    d2 = (x[j, 2] - x[i, 2]) + s2
+    ri = radius[i]
+    rj = radius[j]
+    return d0, d1, d2, d0 * d0 + d1 * d1 + d2 * d2, ri, rj, ri + rj
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def contact_geometry(d0, d1, d2, dist2, ri, rj, rsum):
+    """Unit normal ``n`` (i -> j), overlap ``delta`` [m] and the arms ``li, lj`` [m] of a pair
+    (module conventions). Returns ``(n0, n1, n2, delta, li, lj)``."""
+    dist = np.sqrt(dist2)
+    inv = 1.0 / dist
+    delta = rsum - dist
+    return d0 * inv, d1 * inv, d2 * inv, delta, ri - 0.5 * delta, rj - 0.5 * delta
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def relative_motion(i, j, v, w, n0, n1, n2, li, lj):
     """Approach rate ``u . n`` [m/s], sliding velocity ``u_t`` [m/s] and mean spin about ``n`` [rad/s].
 

@@ -92,8 +92,9 @@ import numpy as np
 from numba import njit
 
 from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, add_love_weber, affine_motion,
-                                          carry_force, check_pairs, clear_history, relative_motion,
-                                          scatter_pair, update_history, write_pair)
+                                          carry_force, check_pairs, clear_history, contact_geometry,
+                                          pair_separation, relative_motion, scatter_pair,
+                                          update_history, write_pair)
 
 WIDTH_PLAIN = 3        # history columns of a plain contact (the Mindlin force)
 WIDTH_CEMENTED = 9     # with cement: see the module docstring
@@ -288,24 +289,11 @@ def hertz_mindlin_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, h
     ``hist[p]`` otherwise. ``damped`` and ``deforming`` must be compile-time constants. Returns
     ``(touching, elastic energy [J])``.
     """
-    d0 = (x[j, 0] - x[i, 0]) + s0
-    d1 = (x[j, 1] - x[i, 1]) + s1
-    d2 = (x[j, 2] - x[i, 2]) + s2
-    dist2 = d0 * d0 + d1 * d1 + d2 * d2
-    ri = radius[i]
-    rj = radius[j]
-    rsum = ri + rj
+    d0, d1, d2, dist2, ri, rj, rsum = pair_separation(i, j, s0, s1, s2, x, radius)
     if dist2 >= rsum * rsum:
         clear_history(hist, p)
         return False, 0.0
-    dist = np.sqrt(dist2)
-    inv = 1.0 / dist
-    n0 = d0 * inv
-    n1 = d1 * inv
-    n2 = d2 * inv
-    delta = rsum - dist
-    li = ri - 0.5 * delta
-    lj = rj - 0.5 * delta
+    n0, n1, n2, delta, li, lj = contact_geometry(d0, d1, d2, dist2, ri, rj, rsum)
     a = np.sqrt(ri * rj / rsum * delta)          # contact radius sqrt(R* delta)
     fn_el = 4.0 / 3.0 * e_star * a * delta       # Hertz
     un, ut0, ut1, ut2, spin = relative_motion(i, j, v, w, n0, n1, n2, li, lj)
@@ -334,24 +322,11 @@ def hertz_mindlin_cemented_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius
     elastic energy [J])``; ``interacting`` is True when the spheres touch or a cement acts.
     """
     state = hist[p, 8]
-    d0 = (x[j, 0] - x[i, 0]) + s0
-    d1 = (x[j, 1] - x[i, 1]) + s1
-    d2 = (x[j, 2] - x[i, 2]) + s2
-    dist2 = d0 * d0 + d1 * d1 + d2 * d2
-    ri = radius[i]
-    rj = radius[j]
-    rsum = ri + rj
+    d0, d1, d2, dist2, ri, rj, rsum = pair_separation(i, j, s0, s1, s2, x, radius)
     if state == 0.0 and dist2 >= rsum * rsum:
         clear_history(hist, p)
         return False, 0.0
-    dist = np.sqrt(dist2)
-    inv = 1.0 / dist
-    n0 = d0 * inv
-    n1 = d1 * inv
-    n2 = d2 * inv
-    delta = rsum - dist
-    li = ri - 0.5 * delta
-    lj = rj - 0.5 * delta
+    n0, n1, n2, delta, li, lj = contact_geometry(d0, d1, d2, dist2, ri, rj, rsum)
     un, ut0, ut1, ut2, spin = relative_motion(i, j, v, w, n0, n1, n2, li, lj)
     if deforming:
         un, ut0, ut1, ut2 = affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1, n2, g0, g1, g2)

@@ -48,8 +48,9 @@ import numpy as np
 from numba import njit
 
 from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, add_love_weber, affine_motion,
-                                          check_pairs, clear_history, coulomb_cap, relative_motion,
-                                          scatter_pair, update_history, write_pair)
+                                          check_pairs, clear_history, contact_geometry, coulomb_cap,
+                                          pair_separation, relative_motion, scatter_pair,
+                                          update_history, write_pair)
 
 
 def restitution(zeta):
@@ -143,24 +144,11 @@ def linear_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, hist, dt
     ``hist[p]`` otherwise. ``damped`` and ``deforming`` must be compile-time constants. Returns
     ``(touching, elastic energy [J])``.
     """
-    d0 = (x[j, 0] - x[i, 0]) + s0
-    d1 = (x[j, 1] - x[i, 1]) + s1
-    d2 = (x[j, 2] - x[i, 2]) + s2
-    dist2 = d0 * d0 + d1 * d1 + d2 * d2
-    ri = radius[i]
-    rj = radius[j]
-    rsum = ri + rj
+    d0, d1, d2, dist2, ri, rj, rsum = pair_separation(i, j, s0, s1, s2, x, radius)
     if dist2 >= rsum * rsum:
         clear_history(hist, p)
         return False, 0.0
-    dist = np.sqrt(dist2)
-    inv = 1.0 / dist
-    n0 = d0 * inv
-    n1 = d1 * inv
-    n2 = d2 * inv
-    delta = rsum - dist
-    li = ri - 0.5 * delta
-    lj = rj - 0.5 * delta
+    n0, n1, n2, delta, li, lj = contact_geometry(d0, d1, d2, dist2, ri, rj, rsum)
     un, ut0, ut1, ut2, spin = relative_motion(i, j, v, w, n0, n1, n2, li, lj)
     if deforming:
         un, ut0, ut1, ut2 = affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1, n2, g0, g1, g2)
