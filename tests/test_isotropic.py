@@ -196,3 +196,42 @@ def test_bad_pressures_exit_2():
     p = subprocess.run([sys.executable, "-m", "pardem.drivers.isotropic", "--pressures", "1e5,-3"],
                        capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert p.returncode == 2 and "--pressures" in p.stderr and len(p.stderr.strip().splitlines()) == 1
+
+
+def test_fire_steers_downhill_and_stops_uphill():
+    """The FIRE operation: downhill, v turns towards F keeping |v| to first order; uphill it stops."""
+    from types import SimpleNamespace
+
+    from pardem.relaxation import Fire
+    from pardem.state import Elements
+    from _util import FakeComm
+    e = Elements.from_spheres(np.zeros((2, 3)), 1.0, 1.0)
+    e.v[:] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+    e.f[:] = [[1.0, 1.0, 0.0], [0.0, 1.0, 0.0]]
+    e.w[:] = 3.0
+    sim = SimpleNamespace(elements=e, comm=FakeComm())
+    fire = Fire(alpha_start=0.1)
+    v0 = e.v.copy()
+    fire(sim)
+    scale = np.linalg.norm(v0) / np.linalg.norm(e.f)
+    np.testing.assert_allclose(e.v, 0.9 * v0 + 0.1 * scale * e.f, rtol=1e-14)
+    assert fire.downhill == 1 and fire.alpha == 0.1
+    for _ in range(10):
+        fire(sim)
+    assert fire.alpha == pytest.approx(0.1 * 0.99**6)          # 11 downhill steps, the last 6 past n_min = 5
+    e.f[:] = -e.v                                                # uphill
+    fire(sim)
+    assert np.all(e.v == 0.0) and np.all(e.w == 0.0)
+    assert fire.alpha == 0.1 and fire.downhill == 0 and fire.restarts == 1
+
+
+def test_fire_preparation_meets_the_criteria():
+    deck = small_deck('preparation.relaxation="fire"')
+    case, info = iso.prepare(Communicator(), deck, P0)
+    tol = deck["equilibrium"]
+    b = iso.balance(case.sim, P0)
+    assert info["converged"]
+    assert abs(b["pressure"] / P0 - 1.0) < tol["pressure_tolerance"]
+    assert b["kinetic"] < tol["kinetic_tolerance"] and b["unbalanced"] < tol["force_tolerance"]
+    net = iso.network(case.sim)
+    assert 0.62 < net["solid_fraction"] < 0.66 and net["Z_no_rattlers"] >= 6.0 - 0.02
