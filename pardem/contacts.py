@@ -26,7 +26,9 @@ end only.
 """
 import numpy as np
 
+from pardem.physics.contact_frame import NO_SHIFT
 from pardem.physics.neighbours import VerletList, max_displacement2
+from pardem.physics.timestep import contact_eigen_bound
 
 KEY_BASE = np.int64(1) << np.int64(31)
 
@@ -212,6 +214,16 @@ class Contacts:
                                              dt, self.shift, rate, self.sums,
                                              with_energy=with_energy))
         return self.energy
+
+    def eigen_bound(self, elements):
+        """This rank's bound of ``omega^2`` [1/s^2] of the normal springs of the listed pairs in
+        contact, over the owned rows (``timestep.contact_eigen_bound``: exact for frictionless
+        contacts). The global bound is the maximum over the ranks."""
+        e = elements
+        k_constant, k_hertz = self.law.normal_stiffness(self.params)
+        return float(contact_eigen_bound(self.i, self.j, NO_SHIFT if self.shift is None else self.shift,
+                                         self.shift is not None, e.x, e.radius, e.mass, e.n_owned,
+                                         k_constant, k_hertz))
 
     def counted_once(self, n_owned):
         """Mask of the pairs this rank writes to files and sums (lower-gid end owned)."""

@@ -65,6 +65,7 @@ class Simulation:
         self.dt = float(dt)
         self.time = 0.0
         self.step_count = 0
+        self._clock = (0, 0.0)          # (step, time) from which time counts at the current dt
         self.bond_energy = 0.0
         self.plate_energy = 0.0
         self.max_speed2 = float(max_speed) ** 2
@@ -143,7 +144,14 @@ class Simulation:
         if not vmax2 <= self.max_speed2:
             self._unstable = True
         self.step_count += 1
-        self.time = self.step_count * self.dt   # not a running sum: no drift, exact on restart
+        # not a running sum: no drift, exact on restart
+        self.time = self._clock[1] + (self.step_count - self._clock[0]) * self.dt
+
+    def set_dt(self, dt):
+        """Change the time step [s] from the next step on (adaptive relaxation); the caller is
+        responsible for its stability. Time stays continuous."""
+        self._clock = (self.step_count, self.time)
+        self.dt = float(dt)
 
     @property
     def unstable(self):

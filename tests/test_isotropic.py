@@ -7,8 +7,10 @@ computation from the positions (brute-force O(N^2) pairs, minimum image: Hertz n
 Mindlin tangential spring kt = 8 G* a loaded by the affine tangential displacement, Coulomb cap),
 and to first order the linearised affine stiffness of the contact network (kn d^2, the pre-stress
 term fn / d from the rotation of the branch vectors, kt for shear); relaxed moduli do not exceed
-the affine ones; the driver on 2 ranks writes isotropic.json with exactly the required keys, and
-agrees with 1 rank to a measured tolerance (the gas compression is chaotic, so only statistically).
+the affine ones; the driver on 2 ranks (FIRE preparation, adaptive step) writes isotropic.json
+with exactly the required keys, gives the deck's step back for the moduli, and agrees with 1 rank
+to a measured tolerance (the gas compression is chaotic, so only statistically). FIRE's rules
+(steering, stop, mixing, the adaptive step and its stability bound) on hand-made states.
 """
 import json
 import os
@@ -23,6 +25,7 @@ from pardem import isotropic as iso
 from pardem.config import load_deck
 from pardem.parallel.communicator import Communicator
 from pardem.physics.hertz_mindlin import effective_moduli
+from pardem.physics.timestep import rayleigh_time_step
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -154,8 +157,8 @@ def driver_runs(tmp_path_factory):
     out = {}
     for ranks in (1, 2):
         cmd = [MPIEXEC, "-n", str(ranks), sys.executable, "-m", "pardem.drivers.isotropic", "--config",
-               SMALL, "--set", f"sample.n={N}", "--pressures", "1e6,3e6", "--out", str(d / f"r{ranks}"),
-               "--quiet"]
+               SMALL, "--set", f"sample.n={N}", "--set", 'preparation.relaxation="fire"',
+               "--pressures", "1e6,3e6", "--out", str(d / f"r{ranks}"), "--quiet"]
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT)
         assert p.returncode == 0, p.stderr[-3000:]
         out[ranks] = (json.loads((d / f"r{ranks}" / "isotropic.json").read_text()), p.stdout,
@@ -172,10 +175,17 @@ def test_driver_on_two_ranks_writes_the_rows(driver_runs):
         assert det["converged"]
         assert abs(row["p"] / row["p0"] - 1.0) < 1e-3
         assert 0.62 < row["solid_fraction"] < 0.66
-        assert 5.98 < row["Z_no_rattlers"] < 6.5 and row["Z"] <= row["Z_no_rattlers"]
+        # isostatic (6) at jamming, rising with p: 6.38 at 1 MPa and 6.83 at 10 MPa in the glass deck
+        assert 5.98 < row["Z_no_rattlers"] < 6.8 and row["Z"] <= row["Z_no_rattlers"]
         for m in ("K", "mu"):
             assert 0.0 < row[f"{m}_relaxed"] <= row[f"{m}_affine"]
         assert 1e7 < row["K_affine"] < 1e10
+    # FIRE's adaptive step is given back: the moduli ran at the deck's step
+    deck = small_deck()
+    r_min = min(deck["sample"]["radii"])
+    m = deck["material"]
+    assert data["dt"] == pytest.approx(deck["run"]["dt_fraction"] * rayleigh_time_step(
+        r_min, deck["sample"]["density"], m["shear_modulus"], m["poisson"]), rel=1e-12)
     # moduli grow with pressure (Hertz: about p^(1/3))
     assert data["rows"][1]["K_affine"] > data["rows"][0]["K_affine"]
     assert "p0 [Pa]" in stdout
@@ -223,6 +233,53 @@ def test_fire_steers_downhill_and_stops_uphill():
     fire(sim)
     assert np.all(e.v == 0.0) and np.all(e.w == 0.0)
     assert fire.alpha == 0.1 and fire.downhill == 0 and fire.restarts == 1
+
+
+def test_fire_adaptive_step():
+    """FIRE's time step: grows by f_inc per downhill step past n_min, up to dt_max and to the
+    stability bound safety * 2 / omega of the contacts; an uphill step halves it; friction is
+    refused (the bound covers the normal springs only). The simulation's time stays continuous."""
+    from types import SimpleNamespace
+
+    from pardem.relaxation import Fire
+    from pardem.state import Elements
+    from _util import FakeComm
+    e = Elements.from_spheres(np.zeros((2, 3)), 1.0, 1.0)
+    e.v[:] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+    e.f[:] = e.v
+    contacts = SimpleNamespace(params=SimpleNamespace(friction=0.0), eigen_bound=lambda el: 1.0 / 9.0)
+    sim = SimpleNamespace(elements=e, comm=FakeComm(), contacts=contacts, dt=1.0)
+    sim.set_dt = lambda dt: setattr(sim, "dt", dt)
+    fire = Fire(n_min=5, dt_max=5.0, dt_min=0.1, safety=0.5)
+    dts = []
+    for _ in range(30):
+        fire(sim)
+        dts.append(sim.dt)
+    assert fire.dt_stable == pytest.approx(3.0)                 # 0.5 * 2 / sqrt(1/9)
+    assert dts[:5] == [1.0] * 5 and dts[5] == pytest.approx(1.1) and dts[6] == pytest.approx(1.21)
+    assert max(dts) == pytest.approx(3.0) and dts[-1] == pytest.approx(3.0)
+    e.f[:] = -e.v
+    fire(sim)
+    assert sim.dt == pytest.approx(1.5) and np.all(e.v == 0.0)
+    for _ in range(5):
+        fire(sim)                                                # no force: uphill, halved down to dt_min
+    assert sim.dt == pytest.approx(0.1)
+    contacts.eigen_bound = lambda el: 1e4                       # stiffer contacts: the step follows,
+    e.v[:] = e.f[:] = 1.0                                       # below dt_min (stability first)
+    for _ in range(20):
+        fire(sim)
+    assert fire.dt_stable == pytest.approx(0.01) and sim.dt == pytest.approx(0.01)
+    contacts.params.friction = 0.3
+    fire.calls = 0
+    with pytest.raises(ValueError, match="frictionless"):
+        fire(sim)
+    # Simulation.set_dt: the time goes on from where it was
+    from pardem.simulation import Simulation
+    s = Simulation(FakeComm(), Elements.from_spheres(np.zeros((1, 3)), 1.0, 1.0), None, None, 0.5)
+    s.run(10)
+    s.set_dt(2.0)
+    s.run(3)
+    assert s.time == pytest.approx(11.0) and s.step_count == 13
 
 
 def test_fire_preparation_meets_the_criteria():

@@ -199,3 +199,83 @@ def test_damped_bound(material, edge, zeta):
     assert rho < 1 + 1e-6 and run.startswith("the run"), (
         f"dt_c(zeta={zeta}) = {dt_c:.4g} s is not a stability bound: spectral radius of the one-step "
         f"map {rho:.4f}; {run}")
+
+
+# ---------------------------------------------------------------------------------------------
+# contacts: the bound FIRE's adaptive step uses (frictionless Hertz and linear springs)
+
+def _contact_case(law_name, n=3, seed=3):
+    """A jittered cubic cluster of n^3 spheres of random radii, neighbours overlapping (no cell)."""
+    from pardem.contacts import Contacts
+    from pardem.granular import law_params, simple_cubic
+    from pardem.physics import hertz_mindlin, linear_contact
+    rng = np.random.default_rng(seed)
+    pos, _ = simple_cubic(n, R, spacing=1.96, jitter=0.02, seed=seed)
+    e = Elements.from_spheres(pos, R * rng.uniform(0.97, 1.03, len(pos)), 2500.0)
+    params = {"hertz_mindlin": dict(young=7e10, poisson=0.2, friction=0.0),
+              "linear": dict(kn=3e6, kt=1e6, friction=0.0)}[law_name]
+    law = {"hertz_mindlin": hertz_mindlin, "linear": linear_contact}[law_name]
+    c = Contacts(law, law_params(law_name, params), 0.1 * R)
+    c.rebuild(e)
+    return e, c
+
+
+def _contact_forces(e, c):
+    e.f[:] = 0.0
+    e.t[:] = 0.0
+    c.history[:] = 0.0
+    c.compute(e, 1e-9)
+    return e.f.ravel().copy()
+
+
+@pytest.mark.parametrize("law_name", ["hertz_mindlin", "linear"])
+def test_contact_bound_is_above_the_spectrum(law_name):
+    """``Contacts.eigen_bound`` >= the largest eigenvalue of M^-1/2 K M^-1/2, with K from central
+    differences of the contact kernel's forces (frictionless: translations only), and not absurdly
+    conservative; Verlet at 0.5 * 2 / sqrt(bound) conserves the energy while the cluster flies apart."""
+    e, c = _contact_case(law_name)
+    n = e.n_owned
+    assert np.sum(np.sqrt(np.sum((e.x[c.j] - e.x[c.i]) ** 2, axis=1)) < e.radius[c.i] + e.radius[c.j]) > 30
+    h = 1e-9 * R
+    K = np.zeros((3 * n, 3 * n))
+    x0 = e.x.copy()
+    for a in range(3 * n):
+        e.x[:] = x0
+        e.x.ravel()[a] += h
+        fp = _contact_forces(e, c)
+        e.x[:] = x0
+        e.x.ravel()[a] -= h
+        fm = _contact_forces(e, c)
+        K[:, a] = -(fp - fm) / (2.0 * h)
+    e.x[:] = x0
+    assert np.allclose(K, K.T, rtol=0, atol=1e-5 * np.abs(K).max())
+    m = np.repeat(e.mass[:n], 3)
+    lam = np.linalg.eigvalsh(0.5 * (K + K.T) / np.sqrt(np.outer(m, m))).max()
+    bound = c.eigen_bound(e)
+    assert lam <= bound * (1.0 + 1e-6)
+    assert bound < 5.0 * lam   # block Gershgorin sums every contact's full stiffness: 2.5-4x measured
+    dt = 0.5 * 2.0 / np.sqrt(bound)
+    e.f[:] = 0.0
+    e.t[:] = 0.0
+    sim = Simulation(FakeComm(), e, None, None, dt, contacts=c)
+    sim.run(0)
+    e0 = sim.contact_energy
+    sim.run(2000)
+    assert sim.contact_energy < 0.5 * e0   # the elastic energy went into motion
+    assert sim.contact_energy + sim.kinetic_energy() == pytest.approx(e0, rel=0.04)   # 2 % measured: (omega dt)^2 / 8
+
+
+def test_contact_bound_of_one_pair_is_exact():
+    """Two equal Hertz spheres: the bound 2 k / m with k = 2 E* sqrt(R* delta) is the pair's
+    omega^2, k from a difference of the Hertz force 4/3 E* sqrt(R*) delta^1.5."""
+    from pardem.contacts import Contacts
+    from pardem.granular import law_params
+    from pardem.physics import hertz_mindlin
+    delta = 1e-4 * R
+    e = Elements.from_spheres(np.array([[0.0, 0.0, 0.0], [2 * R - delta, 0.0, 0.0]]), R, 2500.0)
+    params = law_params("hertz_mindlin", dict(young=7e10, poisson=0.2, friction=0.0))
+    c = Contacts(hertz_mindlin, params, 0.1 * R)
+    c.rebuild(e)
+    fn = lambda d: 4.0 / 3.0 * params.e_star * np.sqrt(0.5 * R) * d**1.5
+    k = (fn(delta * (1 + 1e-6)) - fn(delta * (1 - 1e-6))) / (2e-6 * delta)
+    assert c.eigen_bound(e) == pytest.approx(2.0 * k / e.mass[0], rel=1e-8)

@@ -4,9 +4,10 @@
         [--pressures 1e5,1e6,...] [--out DIR] [--quiet]
     mpiexec -n 2 python -m pardem.drivers.isotropic --config drivers/isotropic_glass.toml
 
-A gas of spheres in a periodic cell is compressed by a pressure servo with global viscous damping
-to static equilibrium at each p0 (ascending, the same packing continued), measured (p, Z, Z
-without rattlers, solid fraction, normal force distribution), then, with friction restored, probed
+A gas of spheres in a periodic cell is compressed by a pressure servo, the kinetic energy removed
+by FIRE (adaptive step) or global viscous damping, to static equilibrium at each p0 (ascending, the
+same packing continued), measured (p, Z, Z without rattlers, solid fraction, normal force
+distribution), then, with friction restored, probed
 by small affine strain increments (isotropic and volume-preserving shear) for the bulk and shear
 moduli, affine (no relaxation) and relaxed. The protocol and the equilibrium criteria are those of
 ``pardem.isotropic``. Default deck: ``drivers/isotropic_glass.toml`` values (10,000 glass spheres).

@@ -509,6 +509,12 @@ def cutoff(params, rmax):
     return 2.0 * float(rmax)
 
 
+def normal_stiffness(params):
+    """``(k_constant, k_hertz)``: the normal tangent stiffness ``2 E* sqrt(R* delta)`` [N/m] in the
+    form of ``timestep.contact_eigen_bound``."""
+    return 0.0, 2.0 * params.e_star
+
+
 def compute(params, elements, i, j, history, dt, shift=None, rate=None, acc=None, with_energy=True):
     """Add the contact forces of the pairs ``(i[p], j[p])`` to ``elements.f``/``elements.t``.
 

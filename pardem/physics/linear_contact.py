@@ -261,6 +261,11 @@ def cutoff(params, rmax):
     return 2.0 * float(rmax)
 
 
+def normal_stiffness(params):
+    """``(k_constant, k_hertz)`` of ``timestep.contact_eigen_bound``: the constant ``kn`` [N/m]."""
+    return float(params.kn), 0.0
+
+
 def compute(params, elements, i, j, history, dt, shift=None, rate=None, acc=None, with_energy=True):
     """Add the contact forces of the pairs ``(i[p], j[p])`` to ``elements.f``/``elements.t``.
 

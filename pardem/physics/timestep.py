@@ -44,6 +44,44 @@ def eigen_bound(bi, bj, L0, ka, kb, kt, mass, inertia, n_owned, plate_k_per_mass
     return worst
 
 
+@njit(cache=True, error_model="numpy")
+def contact_eigen_bound(pi, pj, shift, periodic, x, radius, mass, n_owned, k_constant, k_hertz):
+    """Upper bound of ``omega^2`` [1/s^2] over the owned rows for the normal springs of the pairs
+    ``(pi[p], pj[p])`` in contact (``shift`` [n_pairs, 3] [m] added to ``x_j`` when ``periodic``).
+
+    A touching pair's normal tangent stiffness is ``k_constant + k_hertz sqrt(R* delta)`` [N/m]
+    (linear law: ``kn, 0``; Hertz: ``0, 2 E*``). Its 3x3 block ``k n n^T`` has norm ``k``, so row
+    ``a`` gets ``k / m_a + k / sqrt(m_a m_b)`` (block Gershgorin, as ``eigen_bound``). Tangential
+    springs and torques are not included: the bound is exact for frictionless contacts (central
+    forces, no torque), the FIRE preparation's case. Pairs with a ghost end count for the owned end
+    only, which is where the maximum is taken.
+    """
+    lam = np.zeros(x.shape[0])
+    for p in range(pi.shape[0]):
+        i = pi[p]
+        j = pj[p]
+        d0 = x[j, 0] - x[i, 0]
+        d1 = x[j, 1] - x[i, 1]
+        d2 = x[j, 2] - x[i, 2]
+        if periodic:
+            d0 += shift[p, 0]
+            d1 += shift[p, 1]
+            d2 += shift[p, 2]
+        rsum = radius[i] + radius[j]
+        dist2 = d0 * d0 + d1 * d1 + d2 * d2
+        if dist2 >= rsum * rsum:
+            continue
+        delta = rsum - np.sqrt(dist2)
+        k = k_constant + k_hertz * np.sqrt(radius[i] * radius[j] / rsum * delta)
+        cross = k / np.sqrt(mass[i] * mass[j])
+        lam[i] += k / mass[i] + cross
+        lam[j] += k / mass[j] + cross
+    worst = 0.0
+    for a in range(n_owned):
+        worst = max(worst, lam[a])
+    return worst
+
+
 def critical_time_step(omega2_max, tau_max=0.0):
     """``dt_c = sqrt(tau^2 + 4 / omega_max^2) - tau`` [s]; ``inf`` when nothing is stiff.
 
