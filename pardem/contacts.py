@@ -28,7 +28,7 @@ import numpy as np
 
 from pardem.physics.contact_frame import NO_SHIFT
 from pardem.physics.neighbours import VerletList, max_displacement2
-from pardem.physics.timestep import contact_eigen_bound
+from pardem.physics.timestep import contact_stiffness
 
 KEY_BASE = np.int64(1) << np.int64(31)
 
@@ -215,15 +215,17 @@ class Contacts:
                                              with_energy=with_energy))
         return self.energy
 
-    def eigen_bound(self, elements):
-        """This rank's bound of ``omega^2`` [1/s^2] of the normal springs of the listed pairs in
-        contact, over the owned rows (``timestep.contact_eigen_bound``: exact for frictionless
-        contacts). The global bound is the maximum over the ranks."""
+    def stiffness(self, elements):
+        """This rank's ``(omega2, kd2)`` of the listed pairs in contact (``timestep.contact_stiffness``):
+        the bound of ``omega^2`` [1/s^2] of their normal springs over the owned rows (exact for
+        frictionless contacts; the global bound is the maximum over the ranks) and the affine
+        stiffness ``sum k |d|^2`` [N m] of the pairs counted here (the global one is the sum)."""
         e = elements
         k_constant, k_hertz = self.law.normal_stiffness(self.params)
-        return float(contact_eigen_bound(self.i, self.j, NO_SHIFT if self.shift is None else self.shift,
-                                         self.shift is not None, e.x, e.radius, e.mass, e.n_owned,
-                                         k_constant, k_hertz))
+        omega2, kd2 = contact_stiffness(self.i, self.j, NO_SHIFT if self.shift is None else self.shift,
+                                        self.shift is not None, e.x, e.radius, e.mass, e.n_owned,
+                                        k_constant, k_hertz)
+        return float(omega2), float(kd2)
 
     def counted_once(self, n_owned):
         """Mask of the pairs this rank writes to files and sums (lower-gid end owned)."""

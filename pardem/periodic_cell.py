@@ -10,7 +10,12 @@ motion ``-g d`` of each pair (``contact_frame.affine_motion``).
 Servo-control of the mean stress (PHYSICS.md section 12): ``g = gain (p - p0)`` on every axis with
 ``p = -trace(sigma) / 3`` the pressure (positive in compression) from the Love-Weber stress, so the
 cell expands when the packing is above the target pressure and shrinks below it; ``|g|`` is capped
-by ``max_rate``. Units: ``gain`` [1/(Pa s)], ``p0`` [Pa].
+by ``max_rate``. Units: ``gain`` [1/(Pa s)], ``p0`` [Pa]. The loop is discrete: one step changes
+the pressure by ``-S g dt``, with ``S = -dp/de`` [Pa] the packing's affine stiffness, so the error is
+multiplied by ``1 - S gain dt`` per step and the loop diverges once ``S gain dt > 2``. A
+stiff packing at low pressure (Hertz: ``S / p`` grows as ``p^(-2/3)``) or a long step gets there.
+When the caller sets ``servo_stiffness = S`` (``Contacts.stiffness``), ``control`` therefore uses
+``min(gain, 1 / (2 S dt))``, which at most halves the error per step and does not overshoot.
 
 Triaxial control (PHYSICS.md section 12; ``triaxial_servo``): the axial axis ``a`` deforms at an
 imposed rate (negative: compression), and each lateral axis ``b`` servos its own normal stress to the
@@ -67,6 +72,7 @@ class PeriodicCell:
                 raise ValueError("a triaxial servo needs a cell periodic along every axis")
         else:
             self.servo = tuple(float(v) for v in servo)
+        self.servo_stiffness = 0.0   # S [Pa] of the isotropic servo's gain cap (0: no cap)
         self.strain = np.zeros(3)   # accumulated log strain of the edges since the start
         self.strain_since_build = 0.0   # largest |strain| increment since the last list build
 
@@ -123,8 +129,9 @@ class PeriodicCell:
         return {"kind": "triaxial", "axis": axis, "axial_rate": float(axial_rate),
                 "pressure": float(pressure), "gain": float(gain), "max_rate": float(max_rate)}
 
-    def control(self, stress):
-        """Servo update of ``rate`` from the global stress tensor [3, 3] [Pa] (tension positive)."""
+    def control(self, stress, dt=0.0):
+        """Servo update of ``rate`` from the global stress tensor [3, 3] [Pa] (tension positive);
+        ``dt`` [s] the step the rate will act over (for the isotropic servo's gain cap)."""
         if self.servo is None:
             return
         if isinstance(self.servo, dict):
@@ -139,6 +146,8 @@ class PeriodicCell:
             self.rate = rate
             return
         p0, gain, max_rate = self.servo
+        if self.servo_stiffness > 0.0 and dt > 0.0:
+            gain = min(gain, 0.5 / (self.servo_stiffness * dt))
         p = -float(np.trace(stress)) / 3.0
         g = float(np.clip(gain * (p - p0), -max_rate, max_rate))
         self.rate = np.where(self.periodic, g, 0.0)
@@ -149,11 +158,13 @@ class PeriodicCell:
                 "periodic": self.periodic.tolist(), "rate": self.rate.tolist(),
                 "servo": (None if self.servo is None else dict(self.servo)
                           if isinstance(self.servo, dict) else list(self.servo)),
-                "strain": self.strain.tolist(), "strain_since_build": self.strain_since_build}
+                "strain": self.strain.tolist(), "strain_since_build": self.strain_since_build,
+                "servo_stiffness": self.servo_stiffness}
 
     @classmethod
     def from_state(cls, s):
         cell = cls(s["lo"], s["length"], s["periodic"], s["rate"], s["servo"])
         cell.strain = np.asarray(s["strain"], dtype=np.float64)
         cell.strain_since_build = float(s["strain_since_build"])
+        cell.servo_stiffness = float(s.get("servo_stiffness", 0.0))
         return cell

@@ -9,7 +9,7 @@ after ``n_min`` consecutive downhill steps.
 
 Adaptive time step (``dt_max`` given): after ``n_min`` consecutive downhill steps the step grows by
 ``f_inc`` per step, up to ``dt_max`` and to ``safety`` times the Verlet limit ``2 / omega`` of the
-current contacts (``Contacts.eigen_bound``, the block Gershgorin bound of their normal springs,
+current contacts (``Contacts.stiffness``, the block Gershgorin bound of their normal springs,
 recomputed every ``bound_every`` steps); an uphill step multiplies it by ``f_dec`` (not below
 ``dt_min``, unless the bound is lower). A fixed step (the contact law's) is kept otherwise. The Gershgorin bound is exact for
 frictionless contacts only, so the adaptive step refuses contacts with friction.
@@ -46,7 +46,7 @@ class Fire:
         if c.params.friction != 0.0:
             raise ValueError("FIRE's adaptive time step needs frictionless contacts (its stability "
                              f"bound covers the normal springs only), got friction = {c.params.friction}")
-        w2 = sim.comm.max(c.eigen_bound(sim.elements))
+        w2 = sim.comm.max(c.stiffness(sim.elements)[0])
         return self.safety * 2.0 / np.sqrt(w2) if w2 > 0.0 else np.inf
 
     def __call__(self, sim):

@@ -138,7 +138,7 @@ class Simulation:
         self.compute_forces(with_energy)
         if self.cell is not None and self.cell.servo is not None:
             self.stress = self.global_stress()
-            self.cell.control(self.stress)
+            self.cell.control(self.stress, self.dt)
         vmax2 = kick(e.v, e.w, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned)
         self.seconds_computing += (t1 - t0) + (_time.perf_counter() - t2)
         if not vmax2 <= self.max_speed2:

@@ -221,6 +221,27 @@ def test_servo_compresses_a_gas_to_the_target_pressure():
     assert 0.60 < phi < 0.66, phi
 
 
+def test_servo_gain_cap_keeps_the_discrete_loop_stable():
+    """The pressure servo against a packing of affine stiffness S (p = p1 - S e, e the cell's log
+    strain): each step multiplies the error by 1 - S gain dt. At S gain dt = 3 the uncapped loop
+    diverges (x -2 per step); with ``servo_stiffness = S`` the gain is capped at 1 / (2 S dt) and
+    the error halves every step, without overshoot."""
+    from pardem.periodic_cell import PeriodicCell
+    p0, p1, S, dt = 1e5, 1.2e5, 2e8, 1e-8
+    gain = 3.0 / (S * dt)
+    for capped, factor in ((False, -2.0), (True, 0.5)):
+        cell = PeriodicCell(np.zeros(3), np.ones(3), (True,) * 3, servo=(p0, gain, 1e12))
+        cell.servo_stiffness = S if capped else 0.0
+        errors = []
+        for _ in range(8):
+            p = p1 - S * cell.strain[0]
+            errors.append(p - p0)
+            cell.control(np.diag([-p] * 3), dt)
+            cell.strain += cell.rate * dt   # the linearised response: e advances by rate * dt
+        ratios = np.array(errors[1:]) / np.array(errors[:-1])
+        np.testing.assert_allclose(ratios, factor, rtol=1e-9)
+
+
 def test_coordination_and_solid_fraction_against_brute_force():
     from pardem.reducer import granular_measures
     pos, radii, L = dense_packing(n=5, spacing=1.97)

@@ -247,7 +247,7 @@ def test_fire_adaptive_step():
     e = Elements.from_spheres(np.zeros((2, 3)), 1.0, 1.0)
     e.v[:] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
     e.f[:] = e.v
-    contacts = SimpleNamespace(params=SimpleNamespace(friction=0.0), eigen_bound=lambda el: 1.0 / 9.0)
+    contacts = SimpleNamespace(params=SimpleNamespace(friction=0.0), stiffness=lambda el: (1.0 / 9.0, 0.0))
     sim = SimpleNamespace(elements=e, comm=FakeComm(), contacts=contacts, dt=1.0)
     sim.set_dt = lambda dt: setattr(sim, "dt", dt)
     fire = Fire(n_min=5, dt_max=5.0, dt_min=0.1, safety=0.5)
@@ -264,7 +264,7 @@ def test_fire_adaptive_step():
     for _ in range(5):
         fire(sim)                                                # no force: uphill, halved down to dt_min
     assert sim.dt == pytest.approx(0.1)
-    contacts.eigen_bound = lambda el: 1e4                       # stiffer contacts: the step follows,
+    contacts.stiffness = lambda el: (1e4, 0.0)                      # stiffer contacts: the step follows,
     e.v[:] = e.f[:] = 1.0                                       # below dt_min (stability first)
     for _ in range(20):
         fire(sim)
@@ -292,3 +292,23 @@ def test_fire_preparation_meets_the_criteria():
     assert b["kinetic"] < tol["kinetic_tolerance"] and b["unbalanced"] < tol["force_tolerance"]
     net = iso.network(case.sim)
     assert 0.62 < net["solid_fraction"] < 0.66 and net["Z_no_rattlers"] >= 6.0 - 0.02
+    assert case.sim.dt == pytest.approx(iso.build_gas(Communicator(), deck).sim.dt, rel=1e-15)
+
+
+def test_servo_stiffness_is_the_affine_pressure_response():
+    """``ServoStiffness``'s S = kd2 / (3 V) + 2 p equals -dp/de of one affine isotropic strain step
+    e of a frictionless static packing, within 1 %."""
+    case, _ = iso.prepare(Communicator(), small_deck('preparation.relaxation="fire"'), P0)
+    sim = case.sim
+    sim.stress = sim.global_stress()
+    iso.ServoStiffness()(sim)
+    S = sim.cell.servo_stiffness
+    sim.elements.v[:] = 0.0
+    p_before = -np.trace(sim.global_stress()) / 3.0
+    e = 1e-3 * iso.network(sim)["mean_overlap_ratio"]
+    sim.cell.rate = np.full(3, e / sim.dt)
+    sim.run(1)
+    de = float(np.log(1.0 + e))
+    p_after = -np.trace(sim.global_stress()) / 3.0
+    assert S > 10.0 * p_before
+    assert -(p_after - p_before) / de == pytest.approx(S, rel=0.01)

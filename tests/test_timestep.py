@@ -230,7 +230,7 @@ def _contact_forces(e, c):
 
 @pytest.mark.parametrize("law_name", ["hertz_mindlin", "linear"])
 def test_contact_bound_is_above_the_spectrum(law_name):
-    """``Contacts.eigen_bound`` >= the largest eigenvalue of M^-1/2 K M^-1/2, with K from central
+    """``Contacts.stiffness`` bound >= the largest eigenvalue of M^-1/2 K M^-1/2, with K from central
     differences of the contact kernel's forces (frictionless: translations only), and not absurdly
     conservative; Verlet at 0.5 * 2 / sqrt(bound) conserves the energy while the cluster flies apart."""
     e, c = _contact_case(law_name)
@@ -251,7 +251,7 @@ def test_contact_bound_is_above_the_spectrum(law_name):
     assert np.allclose(K, K.T, rtol=0, atol=1e-5 * np.abs(K).max())
     m = np.repeat(e.mass[:n], 3)
     lam = np.linalg.eigvalsh(0.5 * (K + K.T) / np.sqrt(np.outer(m, m))).max()
-    bound = c.eigen_bound(e)
+    bound = c.stiffness(e)[0]
     assert lam <= bound * (1.0 + 1e-6)
     assert bound < 5.0 * lam   # block Gershgorin sums every contact's full stiffness: 2.5-4x measured
     dt = 0.5 * 2.0 / np.sqrt(bound)
@@ -278,4 +278,4 @@ def test_contact_bound_of_one_pair_is_exact():
     c.rebuild(e)
     fn = lambda d: 4.0 / 3.0 * params.e_star * np.sqrt(0.5 * R) * d**1.5
     k = (fn(delta * (1 + 1e-6)) - fn(delta * (1 - 1e-6))) / (2e-6 * delta)
-    assert c.eigen_bound(e) == pytest.approx(2.0 * k / e.mass[0], rel=1e-8)
+    assert c.stiffness(e)[0] == pytest.approx(2.0 * k / e.mass[0], rel=1e-8)

@@ -511,7 +511,7 @@ def cutoff(params, rmax):
 
 def normal_stiffness(params):
     """``(k_constant, k_hertz)``: the normal tangent stiffness ``2 E* sqrt(R* delta)`` [N/m] in the
-    form of ``timestep.contact_eigen_bound``."""
+    form of ``timestep.contact_stiffness``."""
     return 0.0, 2.0 * params.e_star
 
 

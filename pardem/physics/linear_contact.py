@@ -262,7 +262,7 @@ def cutoff(params, rmax):
 
 
 def normal_stiffness(params):
-    """``(k_constant, k_hertz)`` of ``timestep.contact_eigen_bound``: the constant ``kn`` [N/m]."""
+    """``(k_constant, k_hertz)`` of ``timestep.contact_stiffness``: the constant ``kn`` [N/m]."""
     return float(params.kn), 0.0
 
 

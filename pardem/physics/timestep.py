@@ -45,18 +45,24 @@ def eigen_bound(bi, bj, L0, ka, kb, kt, mass, inertia, n_owned, plate_k_per_mass
 
 
 @njit(cache=True, error_model="numpy")
-def contact_eigen_bound(pi, pj, shift, periodic, x, radius, mass, n_owned, k_constant, k_hertz):
-    """Upper bound of ``omega^2`` [1/s^2] over the owned rows for the normal springs of the pairs
-    ``(pi[p], pj[p])`` in contact (``shift`` [n_pairs, 3] [m] added to ``x_j`` when ``periodic``).
+def contact_stiffness(pi, pj, shift, periodic, x, radius, mass, n_owned, k_constant, k_hertz):
+    """Stiffness measures of the normal springs of the pairs ``(pi[p], pj[p])`` in contact
+    (``shift`` [n_pairs, 3] [m] added to ``x_j`` when ``periodic``): ``(omega2, kd2)``.
 
-    A touching pair's normal tangent stiffness is ``k_constant + k_hertz sqrt(R* delta)`` [N/m]
-    (linear law: ``kn, 0``; Hertz: ``0, 2 E*``). Its 3x3 block ``k n n^T`` has norm ``k``, so row
-    ``a`` gets ``k / m_a + k / sqrt(m_a m_b)`` (block Gershgorin, as ``eigen_bound``). Tangential
-    springs and torques are not included: the bound is exact for frictionless contacts (central
-    forces, no torque), the FIRE preparation's case. Pairs with a ghost end count for the owned end
-    only, which is where the maximum is taken.
+    A touching pair's normal tangent stiffness is ``k = k_constant + k_hertz sqrt(R* delta)`` [N/m]
+    (linear law: ``kn, 0``; Hertz: ``0, 2 E*``).
+
+    * ``omega2`` [1/s^2]: upper bound of ``omega^2`` over the owned rows. The pair's 3x3 block
+      ``k n n^T`` has norm ``k``, so row ``a`` gets ``k / m_a + k / sqrt(m_a m_b)`` (block Gershgorin,
+      as ``eigen_bound``). Tangential springs and torques are not included: the bound is exact for
+      frictionless contacts (central forces, no torque), the FIRE preparation's case. Pairs with a
+      ghost end count for the owned end only, which is where the maximum is taken.
+    * ``kd2`` [N m]: ``sum k |d|^2`` over the pairs whose ``i`` is owned (each pair once over the
+      ranks), the network's affine stiffness: under the affine map ``x -> (1 + e) x`` of the cell
+      the frictionless Love-Weber pressure changes by ``dp/de = -(kd2 / (3 V) + 2 p)``.
     """
     lam = np.zeros(x.shape[0])
+    kd2 = 0.0
     for p in range(pi.shape[0]):
         i = pi[p]
         j = pj[p]
@@ -76,10 +82,12 @@ def contact_eigen_bound(pi, pj, shift, periodic, x, radius, mass, n_owned, k_con
         cross = k / np.sqrt(mass[i] * mass[j])
         lam[i] += k / mass[i] + cross
         lam[j] += k / mass[j] + cross
+        if i < n_owned:
+            kd2 += k * dist2
     worst = 0.0
     for a in range(n_owned):
         worst = max(worst, lam[a])
-    return worst
+    return worst, kd2
 
 
 def critical_time_step(omega2_max, tau_max=0.0):
