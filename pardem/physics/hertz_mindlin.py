@@ -278,6 +278,26 @@ def history_width(params):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def hertz_mindlin_forces(p, i, j, ri, rj, rsum, delta, n0, n1, n2, un, ut0, ut1, ut2, spin, mass, hist,
+                         dt, e_star, g_star, mu, gamma, damped):
+    """The laws of a touching pair (overlap ``delta`` > 0 [m], normal ``n``, relative motion ``un``,
+    ``ut``, ``spin`` of ``contact_frame``): Hertz normal force (damped when ``damped``, a
+    compile-time constant), Mindlin tangential force with the Coulomb cap, ``hist[p]`` updated.
+    Returns ``(fn [N], h0, h1, h2 [N], elastic energy [J])``."""
+    a = np.sqrt(ri * rj / rsum * delta)          # contact radius sqrt(R* delta)
+    fn_el = 4.0 / 3.0 * e_star * a * delta       # Hertz
+    fn = fn_el
+    if damped:
+        m_star = mass[i] * mass[j] / (mass[i] + mass[j])
+        fn += gamma * np.sqrt(m_star * 2.0 * e_star * a) * un
+        if fn < 0.0:
+            fn = 0.0
+    kt = 8.0 * g_star * a                        # Mindlin
+    h0, h1, h2 = update_history(hist, p, n0, n1, n2, ut0, ut1, ut2, spin, dt, kt, mu * fn)
+    return fn, h0, h1, h2, 0.4 * fn_el * delta + 0.5 * (h0 * h0 + h1 * h1 + h2 * h2) / kt
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def hertz_mindlin_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, hist, dt, e_star, g_star, mu,
                        gamma, out, damped, deforming):
     """Contact of rows i and j (image shift ``s`` [m] added to ``x_j``), history row ``hist[p]``.
@@ -294,21 +314,14 @@ def hertz_mindlin_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, h
         clear_history(hist, p)
         return False, 0.0
     n0, n1, n2, delta, li, lj = contact_geometry(d0, d1, d2, dist2, ri, rj, rsum)
-    a = np.sqrt(ri * rj / rsum * delta)          # contact radius sqrt(R* delta)
-    fn_el = 4.0 / 3.0 * e_star * a * delta       # Hertz
     un, ut0, ut1, ut2, spin = relative_motion(i, j, v, w, n0, n1, n2, li, lj)
     if deforming:
         un, ut0, ut1, ut2 = affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1, n2, g0, g1, g2)
-    fn = fn_el
-    if damped:
-        m_star = mass[i] * mass[j] / (mass[i] + mass[j])
-        fn += gamma * np.sqrt(m_star * 2.0 * e_star * a) * un
-        if fn < 0.0:
-            fn = 0.0
-    kt = 8.0 * g_star * a                        # Mindlin
-    h0, h1, h2 = update_history(hist, p, n0, n1, n2, ut0, ut1, ut2, spin, dt, kt, mu * fn)
+    fn, h0, h1, h2, energy = hertz_mindlin_forces(p, i, j, ri, rj, rsum, delta, n0, n1, n2, un, ut0,
+                                                  ut1, ut2, spin, mass, hist, dt, e_star, g_star,
+                                                  mu, gamma, damped)
     write_pair(out, n0, n1, n2, fn, h0, h1, h2, li, lj)
-    return True, 0.4 * fn_el * delta + 0.5 * (h0 * h0 + h1 * h1 + h2 * h2) / kt
+    return True, energy
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -334,17 +347,9 @@ def hertz_mindlin_cemented_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius
     h0 = h1 = h2 = 0.0
     energy = 0.0
     if delta > 0.0:      # the Hertz-Mindlin part, exactly the plain law
-        a = np.sqrt(ri * rj / rsum * delta)
-        fn_el = 4.0 / 3.0 * e_star * a * delta
-        fn = fn_el
-        if damped:
-            m_star = mass[i] * mass[j] / (mass[i] + mass[j])
-            fn += gamma * np.sqrt(m_star * 2.0 * e_star * a) * un
-            if fn < 0.0:
-                fn = 0.0
-        kt = 8.0 * g_star * a
-        h0, h1, h2 = update_history(hist, p, n0, n1, n2, ut0, ut1, ut2, spin, dt, kt, mu * fn)
-        energy = 0.4 * fn_el * delta + 0.5 * (h0 * h0 + h1 * h1 + h2 * h2) / kt
+        fn, h0, h1, h2, energy = hertz_mindlin_forces(p, i, j, ri, rj, rsum, delta, n0, n1, n2, un,
+                                                      ut0, ut1, ut2, spin, mass, hist, dt, e_star,
+                                                      g_star, mu, gamma, damped)
     else:
         clear_history(hist, p)
     if state != 0.0:     # the cement, intact (state > 0) or fading (state < 0)
