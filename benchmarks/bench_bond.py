@@ -17,7 +17,7 @@ import time
 
 from bond_case import DT, bond_deck
 
-from pardem.compression import build_case
+from pardem.protocols.compression import build_case
 from pardem.parallel.communicator import Communicator
 
 

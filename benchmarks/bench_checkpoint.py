@@ -19,7 +19,7 @@ import time
 
 from bond_case import bond_deck
 
-from pardem.compression import build_case, checkpoint_payload, restore_case
+from pardem.protocols.compression import build_case, checkpoint_payload, restore_case
 from pardem.io.checkpoint import write_checkpoint
 from pardem.parallel.communicator import Communicator
 

@@ -8,7 +8,7 @@ n * 1.998 R; dt = 1e-8 s; 100 warm-up steps then 2000 timed steps; n = 20, 40, 6
     python benchmarks/bench_gran.py [--sizes 20 40 60] [--steps 2000]
     mpiexec -n 2 python benchmarks/bench_gran.py
 
-The case is the engine's (``pardem.granular.build``: slabs along x, which is periodic, so the
+The case is the engine's (``pardem.engine.granular.build``: slabs along x, which is periodic, so the
 first and last ranks are neighbours; Verlet list with skin 0.1 R; ``Simulation.run``). Prints and
 writes JSON (``results/bench_gran_<P>ranks.json``) with element-steps per second, wall time per step,
 the share of time in communication and whether the lists were rebuilt during the timed steps.
@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from pardem import granular
+from pardem.engine import granular
 from pardem.parallel.communicator import Communicator
 
 R, RHO, DT = 0.1e-3, 2500.0, 1e-8

@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 
-from pardem.cli import EXIT_OK, fail_usage
+from pardem.drivers.cli import EXIT_OK, fail_usage
 
 SUMMARY_KEYS = ("cross_section", "loading_axis")
 

@@ -5,9 +5,9 @@ Nothing here calls pardem's quaternion code, so tests can compare pardem against
 
 import numpy as np
 
-from pardem.bonding import BeamMaterial, make_bonds
+from pardem.engine.bonding import BeamMaterial, make_bonds
 from pardem.physics.beam import compute_bonds
-from pardem.state import Elements
+from pardem.engine.state import Elements
 
 
 def quat(rotvec):

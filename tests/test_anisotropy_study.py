@@ -19,7 +19,7 @@ import sys
 import numpy as np
 import pytest
 
-from pardem import anisotropy_study as study
+from pardem.protocols import anisotropy_study as study
 from pardem.config import COMPRESS_SCHEMA, load_deck
 from pardem.drivers import anisotropy
 

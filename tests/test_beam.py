@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from pardem.parallel.communicator import Communicator
-from pardem.simulation import Simulation
-from pardem.state import Plates
+from pardem.engine.simulation import Simulation
+from pardem.engine.state import Plates
 from _util import (beam_constants, loads, perpendicular, qmul, quat, random_rotvec, random_unit,
                    rotate_element, rotmat, two_elements)
 

@@ -9,11 +9,11 @@ import sys
 import numpy as np
 import pytest
 
-from pardem import calibration as calib
+from pardem.protocols import calibration as calib
 from pardem.config import COMPRESS_SCHEMA, DeckError, load_deck
 from pardem.drivers import calibrate
 from pardem.parallel.communicator import Communicator
-from pardem.shear_test import run_shear
+from pardem.protocols.shear import run_shear
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -149,7 +149,7 @@ def test_quick_verification_on_two_ranks(tmp_path):
 
     Tolerance of G against beam theory, 1 %: the uniform interior state makes the lattice's G exact, and
     the measured slope was within 2e-6 of it (8^3 elements, 8 transits); 1 % leaves room only for the
-    loading-rate error of a slope (0.7 % after 8 transits, ``pardem.anisotropy_study``).
+    loading-rate error of a slope (0.7 % after 8 transits, ``pardem.protocols.anisotropy_study``).
     """
     out = tmp_path / "two"
     p = subprocess.run([MPIEXEC, "-n", "2", sys.executable, "-m", "pardem.drivers.calibrate", "--config", BEECH,

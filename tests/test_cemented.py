@@ -9,10 +9,10 @@ function of (seed, pair) only, and the refusal of cements that could outlive the
 import numpy as np
 import pytest
 
-from pardem import cement
-from pardem.contacts import Contacts, pair_keys
+from pardem.engine import cement
+from pardem.engine.contacts import Contacts, pair_keys
 from pardem.physics import hertz_mindlin as hm
-from pardem.state import Elements
+from pardem.engine.state import Elements
 
 R = 0.5e-3
 RHO = 2500.0

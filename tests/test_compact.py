@@ -13,7 +13,7 @@ import sys
 import numpy as np
 import pytest
 
-from pardem.compression import build_case
+from pardem.protocols.compression import build_case
 from pardem.config import COMPRESS_SCHEMA, load_deck
 from pardem.domains.compact import (MIN_FRACTION, bonded_pairs, compact_domain, compact_packing,
                                     element_count, overlap_forces)

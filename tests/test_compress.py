@@ -4,14 +4,15 @@ import json
 import numpy as np
 import pytest
 
-from pardem.bonding import BeamMaterial, make_bonds
+from pardem.engine.bonding import BeamMaterial, make_bonds
 from pardem.domains.ordered import ordered_lattice
 from pardem.drivers import compress
 from pardem.io.series import SERIES_COLUMNS, read_series
 from pardem.parallel.communicator import Communicator
 from pardem.physics.timestep import critical_time_step, eigen_bound
-from pardem.simulation import InstabilityError, Simulation
-from pardem.state import Elements, Plates
+from pardem.engine.errors import InstabilityError
+from pardem.engine.simulation import Simulation
+from pardem.engine.state import Elements, Plates
 
 SMALL = ["--set", "domain.box=[0.0055, 0.0055, 0.0055]", "--set", "domain.radius=0.25e-3"]  # 11^3
 

@@ -37,7 +37,7 @@ from pardem.physics import hertz_mindlin as hm
 from pardem.physics import linear_contact as lc
 from pardem.physics.verlet import kick, kick_drift
 from pardem.physics.viscous_damping import damp_elements
-from pardem.state import Elements
+from pardem.engine.state import Elements
 from _util import perpendicular, random_unit, rotmat
 
 YOUNG, NU, RHO = 1.0e9, 0.3, 2500.0

@@ -11,11 +11,11 @@ import sys
 import numpy as np
 import pytest
 
-from pardem import granular
-from pardem.contacts import pair_keys
+from pardem.engine import granular
+from pardem.engine.contacts import pair_keys
 from pardem.parallel.communicator import Communicator
 from pardem.physics.hertz_mindlin import effective_moduli
-from pardem.simulation import InstabilityError
+from pardem.engine.errors import InstabilityError
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 SCRIPT = os.path.join(os.path.dirname(__file__), "mpi", "granular_run.py")
@@ -226,7 +226,7 @@ def test_servo_gain_cap_keeps_the_discrete_loop_stable():
     strain): each step multiplies the error by 1 - S gain dt. At S gain dt = 3 the uncapped loop
     diverges (x -2 per step); with ``servo_stiffness = S`` the gain is capped at 1 / (2 S dt) and
     the error halves every step, without overshoot."""
-    from pardem.periodic_cell import PeriodicCell
+    from pardem.engine.periodic_cell import PeriodicCell
     p0, p1, S, dt = 1e5, 1.2e5, 2e8, 1e-8
     gain = 3.0 / (S * dt)
     for capped, factor in ((False, -2.0), (True, 0.5)):
@@ -243,7 +243,7 @@ def test_servo_gain_cap_keeps_the_discrete_loop_stable():
 
 
 def test_coordination_and_solid_fraction_against_brute_force():
-    from pardem.reducer import granular_measures
+    from pardem.engine.reducer import granular_measures
     pos, radii, L = dense_packing(n=5, spacing=1.97)
     case = granular.build(Communicator(), pos, radii, 2500.0, "hertz_mindlin",
                           {"young": 72e9, "poisson": 0.2, "friction": 0.0}, np.zeros(3), np.full(3, L),
@@ -302,10 +302,10 @@ def test_linear_contact_critical_step_is_the_stability_limit():
 def test_bonded_pairs_feel_no_contact():
     """Three overlapping spheres, 0-1 bonded: the list holds 0-2 and 1-2 only, and the contact
     forces equal those of the brute-force sum over the unbonded overlapping pairs."""
-    from pardem.bonding import BeamMaterial, make_bonds
-    from pardem.contacts import Contacts
+    from pardem.engine.bonding import BeamMaterial, make_bonds
+    from pardem.engine.contacts import Contacts
     from pardem.physics import hertz_mindlin
-    from pardem.state import Elements
+    from pardem.engine.state import Elements
     pos = np.array([[0.0, 0.0, 0.0], [1.9 * R, 0.0, 0.0], [0.95 * R, 1.7 * R, 0.0]])
     e = Elements.from_spheres(pos, R, 2500.0)
     bonds = make_bonds(e, [[0, 1]], BeamMaterial(young=1e9, radius_ratio=0.5, poisson=0.3, damping=0.0),

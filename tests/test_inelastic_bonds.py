@@ -12,10 +12,10 @@ the engine does once per step) are compared with the analytic laws:
 import numpy as np
 import pytest
 
-from pardem.bonding import BeamMaterial, make_bonds
+from pardem.engine.bonding import BeamMaterial, make_bonds
 from pardem.physics.anisotropy import lrt_frame
 from pardem.physics.beam import compute_bonds
-from pardem.state import BOND_BROKEN_SHEAR, BOND_BROKEN_TENSION, BOND_INTACT, Elements
+from pardem.engine.state import BOND_BROKEN_SHEAR, BOND_BROKEN_TENSION, BOND_INTACT, Elements
 
 R = 1e-3
 E = 1e9

@@ -12,13 +12,13 @@ of drift of the on-step energy (half-run averages within 1e-3).
 import numpy as np
 import pytest
 
-from pardem.bonding import BeamMaterial, make_bonds
+from pardem.engine.bonding import BeamMaterial, make_bonds
 from pardem.domains.ordered import ordered_lattice
 from pardem.physics.quaternion import (quat_from_rotvec, quat_multiply_into, quat_to_matrix,
                                        rotate_world)
 from pardem.physics.timestep import critical_time_step, eigen_bound, max_tau
-from pardem.simulation import Simulation
-from pardem.state import Elements, Plates
+from pardem.engine.simulation import Simulation
+from pardem.engine.state import Elements, Plates
 from _util import FakeComm, loads, quat, random_rotvec, random_unit, rotmat
 
 R = 1e-3

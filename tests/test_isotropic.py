@@ -1,4 +1,4 @@
-"""Isotropic preparation and elastic moduli (pardem.isotropic, python -m pardem.drivers.isotropic).
+"""Isotropic preparation and elastic moduli (pardem.protocols.isotropic, python -m pardem.drivers.isotropic).
 
 Checks: a small bidisperse glass gas brought to static equilibrium at p0 meets the stated criteria
 (p within the tolerance of p0, kinetic energy and force balance), is isostatic once the rattlers are
@@ -21,7 +21,7 @@ import sys
 import numpy as np
 import pytest
 
-from pardem import isotropic as iso
+from pardem.protocols import isotropic as iso
 from pardem.config import load_deck
 from pardem.parallel.communicator import Communicator
 from pardem.physics.hertz_mindlin import effective_moduli
@@ -212,8 +212,8 @@ def test_fire_steers_downhill_and_stops_uphill():
     """The FIRE operation: downhill, v turns towards F keeping |v| to first order; uphill it stops."""
     from types import SimpleNamespace
 
-    from pardem.relaxation import Fire
-    from pardem.state import Elements
+    from pardem.engine.relaxation import Fire
+    from pardem.engine.state import Elements
     from _util import FakeComm
     e = Elements.from_spheres(np.zeros((2, 3)), 1.0, 1.0)
     e.v[:] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
@@ -241,8 +241,8 @@ def test_fire_adaptive_step():
     refused (the bound covers the normal springs only). The simulation's time stays continuous."""
     from types import SimpleNamespace
 
-    from pardem.relaxation import Fire
-    from pardem.state import Elements
+    from pardem.engine.relaxation import Fire
+    from pardem.engine.state import Elements
     from _util import FakeComm
     e = Elements.from_spheres(np.zeros((2, 3)), 1.0, 1.0)
     e.v[:] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
@@ -274,7 +274,7 @@ def test_fire_adaptive_step():
     with pytest.raises(ValueError, match="frictionless"):
         fire(sim)
     # Simulation.set_dt: the time goes on from where it was
-    from pardem.simulation import Simulation
+    from pardem.engine.simulation import Simulation
     s = Simulation(FakeComm(), Elements.from_spheres(np.zeros((1, 3)), 1.0, 1.0), None, None, 0.5)
     s.run(10)
     s.set_dt(2.0)

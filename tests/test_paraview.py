@@ -14,11 +14,11 @@ import meshio
 import numpy as np
 import pytest
 
-from pardem.bonding import BeamMaterial, make_bonds
+from pardem.engine.bonding import BeamMaterial, make_bonds
 from pardem.domains.ordered import ordered_lattice
 from pardem.io.paraview import ParaViewWriter
-from pardem.simulation import Simulation
-from pardem.state import Elements, Plates
+from pardem.engine.simulation import Simulation
+from pardem.engine.state import Elements, Plates
 
 from _util import FakeComm
 

@@ -1,4 +1,4 @@
-"""Least-squares strain and moduli (pardem.reducer), PHYSICS.md section 5.
+"""Least-squares strain and moduli (pardem.engine.reducer), PHYSICS.md section 5.
 
 The fit U = H X0 + c is exact on affine displacement fields, equals NumPy's least squares on
 non-affine ones, ignores elements flagged FLAG_NEAR_PLATE and ghost rows, gives the same result when
@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from pardem.parallel.communicator import Communicator
-from pardem.reducer import Reducer, gradient_from_sums, strain_sums, strain_tensor, young_and_poisson
-from pardem.state import FLAG_NEAR_PLATE, Bonds, Elements, Plates
+from pardem.engine.reducer import Reducer, gradient_from_sums, strain_sums, strain_tensor, young_and_poisson
+from pardem.engine.state import FLAG_NEAR_PLATE, Bonds, Elements, Plates
 from _util import FakeComm
 
 

@@ -21,7 +21,7 @@ import meshio
 import numpy as np
 import pytest
 
-from pardem.contacts import pair_keys
+from pardem.engine.contacts import pair_keys
 from pardem.io.series import read_series
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")

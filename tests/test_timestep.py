@@ -15,12 +15,13 @@ rotation vectors), and the damping matrix C by differences over velocities. Then
 import numpy as np
 import pytest
 
-from pardem.bonding import BeamMaterial, make_bonds
+from pardem.engine.bonding import BeamMaterial, make_bonds
 from pardem.domains.ordered import ordered_lattice
 from pardem.physics import walls
 from pardem.physics.timestep import critical_time_step, eigen_bound, max_tau
-from pardem.simulation import InstabilityError, Simulation
-from pardem.state import Elements, Plates
+from pardem.engine.errors import InstabilityError
+from pardem.engine.simulation import Simulation
+from pardem.engine.state import Elements, Plates
 from _util import FakeComm, loads, qmul, quat
 
 R = 1e-3
@@ -206,8 +207,8 @@ def test_damped_bound(material, edge, zeta):
 
 def _contact_case(law_name, n=3, seed=3):
     """A jittered cubic cluster of n^3 spheres of random radii, neighbours overlapping (no cell)."""
-    from pardem.contacts import Contacts
-    from pardem.granular import law_params, simple_cubic
+    from pardem.engine.contacts import Contacts
+    from pardem.engine.granular import law_params, simple_cubic
     from pardem.physics import hertz_mindlin, linear_contact
     rng = np.random.default_rng(seed)
     pos, _ = simple_cubic(n, R, spacing=1.96, jitter=0.02, seed=seed)
@@ -268,8 +269,8 @@ def test_contact_bound_is_above_the_spectrum(law_name):
 def test_contact_bound_of_one_pair_is_exact():
     """Two equal Hertz spheres: the bound 2 k / m with k = 2 E* sqrt(R* delta) is the pair's
     omega^2, k from a difference of the Hertz force 4/3 E* sqrt(R*) delta^1.5."""
-    from pardem.contacts import Contacts
-    from pardem.granular import law_params
+    from pardem.engine.contacts import Contacts
+    from pardem.engine.granular import law_params
     from pardem.physics import hertz_mindlin
     delta = 1e-4 * R
     e = Elements.from_spheres(np.array([[0.0, 0.0, 0.0], [2 * R - delta, 0.0, 0.0]]), R, 2500.0)

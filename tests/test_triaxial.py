@@ -14,11 +14,12 @@ import sys
 import numpy as np
 import pytest
 
-from pardem import granular, triaxial
+from pardem.engine import granular
+from pardem.protocols import triaxial
 from pardem.config import load_deck
 from pardem.drivers import triaxial as driver
 from pardem.parallel.communicator import Communicator
-from pardem.periodic_cell import PeriodicCell
+from pardem.engine.periodic_cell import PeriodicCell
 from pardem.physics import hertz_mindlin as hm
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")

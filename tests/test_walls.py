@@ -27,7 +27,7 @@ from pardem.physics import walls as W
 from pardem.physics.hertz_mindlin import hertz_damping_coefficient
 from pardem.physics.linear_contact import damping_ratio
 from pardem.physics.verlet import kick, kick_drift
-from pardem.state import Elements
+from pardem.engine.state import Elements
 from _util import perpendicular, random_unit, rotmat
 
 RHO = 2500.0

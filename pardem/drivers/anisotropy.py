@@ -6,7 +6,7 @@
     mpiexec -n 2 python -m pardem.drivers.anisotropy ...      (cases are spread over the ranks)
 
 Writes ``DIR/anisotropy.json``, ``DIR/anisotropy.png`` (with matplotlib) and prints the table; see
-``pardem.anisotropy_study`` for what is run and how. JSON layout: ``data[kind][law]`` = one row per
+``pardem.protocols.anisotropy_study`` for what is run and how. JSON layout: ``data[kind][law]`` = one row per
 bond ratio with ``bond_LR``, ``bond_LT`` (bond ratios), ``LR_mean``, ``LR_std``, ``LT_mean``, ``LT_std``
 (the domain's E_L^D/E_R^D and E_L^D/E_T^D over the realisations), ``E_{L,R,T}_{mean,std}`` [Pa],
 ``n_realisations``, ``n_failed``; ``data["off_axis"][kind][law]`` = one row per tilt with ``xi_deg``,
@@ -40,9 +40,9 @@ from dataclasses import asdict
 import numpy as np
 
 import pardem
-from pardem import anisotropy_study as study
-from pardem.cli import EXIT_OK, driver_parser, fail_usage, run_driver
-from pardem.compression import build_case
+from pardem.protocols import anisotropy_study as study
+from pardem.drivers.cli import EXIT_OK, driver_parser, fail_usage, run_driver
+from pardem.protocols.compression import build_case
 from pardem.config import COMPRESS_SCHEMA, DeckError, load_deck
 from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator
@@ -214,7 +214,7 @@ def run(comm, args):
         print(study.format_table(data, plan))
         written = ["anisotropy.json"]
         if plot:
-            from pardem.anisotropy_plot import plot_study
+            from pardem.io.anisotropy_plot import plot_study
             plot_study(data, plan, os.path.join(out, "anisotropy.png"))
             written.append("anisotropy.png")
         if failed:

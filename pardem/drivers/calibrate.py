@@ -5,19 +5,19 @@
     mpiexec -n 2 python -m pardem.drivers.calibrate --config drivers/calibrate_beech.toml --verify
 
 From the targets deck (E_L^D, E_T^D, optionally E_R^D, G^D, density, strengths, densification
-threshold; see ``pardem.calibration.CALIBRATE_SCHEMA`` or ``--help``) it computes the bond parameters
-of the ordered lattice (``pardem.calibration.calibrate``) and writes ``DIR/compress_calibrated.toml``, a
+threshold; see ``pardem.protocols.calibration.CALIBRATE_SCHEMA`` or ``--help``) it computes the bond parameters
+of the ordered lattice (``pardem.protocols.calibration.calibrate``) and writes ``DIR/compress_calibrated.toml``, a
 deck for ``python -m pardem.drivers.compress --config``, and ``DIR/calibration.json`` (targets, bond
 parameters, analytic predictions).
 
 ``--verify`` then measures the calibrated ordered domain: compressions along L (x) and T (z) (and R
-(y) when E_R^D is a separate target), by the compression case of ``pardem.compression`` loaded over
+(y) when E_R^D is a separate target), by the compression case of ``pardem.protocols.compression`` loaded over
 ``verify.transits`` axial wave transits (quasi-static slope modulus), and a simple-shear test of
-``verify.shear_plane`` (``pardem.shear_test``). The runs are elastic (the strength thresholds are
+``verify.shear_plane`` (``pardem.protocols.shear``). The runs are elastic (the strength thresholds are
 left out) and use every rank (one run after the other). ``calibration.json`` gets, per quantity,
 the target, the measured value and the relative error; the shear row also holds the beam-theory
 prediction of the lattice (section 6's shear relation is twice the Euler-Bernoulli lattice value, see
-``pardem.calibration``). ``--quick`` verifies on a cube of ``verify.quick_elements`` elements per edge
+``pardem.protocols.calibration``). ``--quick`` verifies on a cube of ``verify.quick_elements`` elements per edge
 instead of the deck's domain (the written deck keeps the deck's domain).
 
 Runtime (2-core development machine, 2 ranks): ``--quick --verify`` on the beech deck (8^3 elements)
@@ -36,15 +36,15 @@ import sys
 import time
 
 import pardem
-from pardem import calibration as calib
-from pardem.cli import EXIT_OK, EXIT_UNSTABLE, driver_parser, fail_usage, read_deck, run_driver
-from pardem.compression import SeriesSampler, build_case, measure
+from pardem.protocols import calibration as calib
+from pardem.drivers.cli import EXIT_OK, EXIT_UNSTABLE, driver_parser, fail_usage, read_deck, run_driver
+from pardem.protocols.compression import SeriesSampler, build_case, measure
 from pardem.config import COMPRESS_SCHEMA, DeckError, check_deck
 from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator
-from pardem.parallel.slab_comm import DecompositionError
-from pardem.shear_test import run_shear
-from pardem.simulation import InstabilityError
+from pardem.engine.errors import DecompositionError
+from pardem.protocols.shear import run_shear
+from pardem.engine.errors import InstabilityError
 
 DECK_NAME = "compress_calibrated.toml"
 STRENGTH_KEYS = ("tensile_strength", "shear_strength", "densification_stress", "densification_p0")

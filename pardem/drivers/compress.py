@@ -15,8 +15,8 @@ import time
 import numpy as np
 
 import pardem
-from pardem.cli import EXIT_UNSTABLE, driver_parser, fail_usage, read_deck, run_driver
-from pardem.compression import (CheckpointWriter, Progress, SeriesSampler, build_case, loading_warning,
+from pardem.drivers.cli import EXIT_UNSTABLE, driver_parser, fail_usage, read_deck, run_driver
+from pardem.protocols.compression import (CheckpointWriter, Progress, SeriesSampler, build_case, loading_warning,
                                 measure, restore_case)
 from pardem.io import checkpoint
 from pardem.io.paraview import ParaViewWriter
@@ -25,8 +25,9 @@ from pardem.io.series import SeriesCSV
 from pardem.io.series_h5 import SeriesH5
 from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator
-from pardem.parallel.slab_comm import DecompositionError
-from pardem.simulation import FaultInjection, InstabilityError
+from pardem.engine.errors import DecompositionError
+from pardem.engine.errors import InstabilityError
+from pardem.engine.simulation import FaultInjection
 
 
 def _default_out(comm, restart):

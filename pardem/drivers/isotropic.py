@@ -10,7 +10,7 @@ same packing continued), measured (p, Z, Z without rattlers, solid fraction, nor
 distribution), then, with friction restored, probed
 by small affine strain increments (isotropic and volume-preserving shear) for the bulk and shear
 moduli, affine (no relaxation) and relaxed. The protocol and the equilibrium criteria are those of
-``pardem.isotropic``. Default deck: ``drivers/isotropic_glass.toml`` values (10,000 glass spheres).
+``pardem.protocols.isotropic``. Default deck: ``drivers/isotropic_glass.toml`` values (10,000 glass spheres).
 
 Writes ``DIR/isotropic.json``: ``rows`` (one per pressure: ``p0, p, Z, Z_no_rattlers,
 solid_fraction, K_affine, K_relaxed, mu_affine, mu_relaxed``, SI units; a modulus is null when not
@@ -28,8 +28,8 @@ import sys
 import time
 
 import pardem
-from pardem import isotropic as iso
-from pardem.cli import EXIT_OK, driver_parser, fail_usage, run_driver
+from pardem.protocols import isotropic as iso
+from pardem.drivers.cli import EXIT_OK, driver_parser, fail_usage, run_driver
 from pardem.config import DeckError, load_deck
 from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator

@@ -5,7 +5,7 @@
 
 Prepares a packing by isotropic compression to the confining pressure pc, cements every contact
 (rupture energies uniform in mean +- half-width), then shortens the axial edge of the periodic
-cell at a constant rate while servo-controlling the lateral stresses to pc (``pardem.triaxial``
+cell at a constant rate while servo-controlling the lateral stresses to pc (``pardem.protocols.triaxial``
 describes the protocol and the measures). The deck's defaults are ``drivers/triaxial_cemented.toml``.
 
 Writes ``DIR/triaxial.csv`` (one row per sample of the loading: step, time [s], eps_axial,
@@ -28,12 +28,12 @@ import sys
 import time
 
 import pardem
-from pardem import triaxial
-from pardem.cli import EXIT_OK, EXIT_UNSTABLE, driver_parser, fail_usage, run_driver
+from pardem.protocols import triaxial
+from pardem.drivers.cli import EXIT_OK, EXIT_UNSTABLE, driver_parser, fail_usage, run_driver
 from pardem.config import DeckError, load_deck
 from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator
-from pardem.simulation import InstabilityError
+from pardem.engine.errors import InstabilityError
 
 
 def parser(comm=None):

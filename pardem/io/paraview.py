@@ -52,7 +52,7 @@ import sys
 import meshio
 import numpy as np
 
-from pardem.state import BOND_INTACT
+from pardem.engine.state import BOND_INTACT
 
 PVD_NAME = "pardem.pvd"
 

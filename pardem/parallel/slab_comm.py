@@ -23,7 +23,7 @@ element that can interact with an owned one was within ``ghost_range = interacti
 
 Contacts: at a rebuild the contact history table (pairs with a non-zero history, keyed by their
 end gids) travels with the migrating elements like the bonds do, then the contact list is rebuilt
-on the new rows (``pardem.contacts``).
+on the new rows (``pardem.engine.contacts``).
 
 Periodic slab axis (a ``PeriodicCell`` periodic along it): the first and last ranks are
 neighbours; positions are wrapped into the cell at each rebuild; an element leaving a slab goes the
@@ -37,8 +37,8 @@ from numba import njit
 
 from pardem.parallel.slabs import Slabs, imbalance
 from pardem.physics.neighbours import max_displacement2
-from pardem.simulation import InstabilityError
-from pardem.state import Bonds, Elements
+from pardem.engine.errors import DecompositionError, InstabilityError
+from pardem.engine.state import Bonds, Elements
 
 _TAG_FORWARD, _TAG_EXCHANGE, _TAG_BORDERS = 71, 72, 73
 GHOST_WIDTH = 13   # doubles per ghost per step: x, v, w (3 each), q (4)
@@ -76,8 +76,6 @@ def _concat(parts):
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
-class DecompositionError(RuntimeError):
-    """The decomposition cannot hold this domain (e.g. slabs thinner than the ghost range)."""
 
 
 class BondOutOfReach(DecompositionError):

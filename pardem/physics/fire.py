@@ -1,6 +1,6 @@
 """FIRE (fast inertial relaxation engine, Bitzek et al. 2006) kernels: quench a packing to rest.
 
-Pure array kernels over the owned rows; the global sums are the caller's (``pardem.relaxation``).
+Pure array kernels over the owned rows; the global sums are the caller's (``pardem.engine.relaxation``).
 One FIRE update after a velocity-Verlet step, with the global ``P = F . v``, ``|F|`` and ``|v|``
 (translation only: used on frictionless packings, whose torques vanish):
 

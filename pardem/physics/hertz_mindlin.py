@@ -77,7 +77,7 @@ the full cement force; ``state <- -1``). Then, for ``cement_fade_time = t_f`` [s
 value at rupture, carried in the contact plane); when ``s`` reaches 0 the cement columns are cleared
 (with ``t_f = 0`` on the step after rupture). The returned energy adds ``E_c`` of the intact
 cements (not of the fading ones). Thresholds and ``delta0`` are set by
-``pardem.cement`` at cementation, not here.
+``pardem.engine.cement`` at cementation, not here.
 
 References
 ----------

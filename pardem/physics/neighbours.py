@@ -7,7 +7,7 @@ cannot close a gap larger than the skin. The list is built in O(N) time and memo
 
 Conventions
 -----------
-* Units are SI: positions ``x`` [m], radii and skin [m]. Arrays follow ``pardem.state``: rows
+* Units are SI: positions ``x`` [m], radii and skin [m]. Arrays follow ``pardem.engine.state``: rows
   ``[0, n_owned)`` are owned, rows ``[n_owned, n_total)`` are ghost copies; ``gid`` [n_total] int64
   global ids, unique among the rows.
 * Only pairs with at least one owned row are kept (a rank computes every interaction that acts on

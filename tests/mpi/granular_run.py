@@ -10,8 +10,8 @@ import argparse
 
 import numpy as np
 
-from pardem import granular
-from pardem.contacts import pair_keys
+from pardem.engine import granular
+from pardem.engine.contacts import pair_keys
 from pardem.parallel.communicator import Communicator
 
 R = 0.1e-3

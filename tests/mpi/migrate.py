@@ -8,14 +8,14 @@ import sys
 
 import numpy as np
 
-from pardem.bonding import BeamMaterial, make_bonds
+from pardem.engine.bonding import BeamMaterial, make_bonds
 from pardem.domains.ordered import ordered_lattice
 from pardem.parallel.communicator import Communicator
 from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs
 from pardem.physics.quaternion import quat_from_rotvec
-from pardem.simulation import Simulation
-from pardem.state import BOND_FIELDS, Elements, Plates
+from pardem.engine.simulation import Simulation
+from pardem.engine.state import BOND_FIELDS, Elements, Plates
 
 out_path = sys.argv[1]
 comm = Communicator()

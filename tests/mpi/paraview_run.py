@@ -11,7 +11,7 @@ import sys
 
 import numpy as np
 
-from pardem.compression import build_case
+from pardem.protocols.compression import build_case
 from pardem.config import COMPRESS_SCHEMA, check_deck
 from pardem.io.paraview import ParaViewWriter
 from pardem.parallel.communicator import Communicator

@@ -5,13 +5,14 @@
 Restores the granular case of CHECKPOINT (a cemented packing with the triaxial servo, written by
 ``tests/test_triaxial.py``), runs the loading until STEPS steps after its start, and writes the
 owned state gathered on rank 0 sorted by gid (x, v, w), the cement histories keyed by gid pair, the
-cell, and the sampled rows (``pardem.triaxial.COLUMNS``).
+cell, and the sampled rows (``pardem.protocols.triaxial.COLUMNS``).
 """
 import argparse
 
 import numpy as np
 
-from pardem import granular, triaxial
+from pardem.engine import granular
+from pardem.protocols import triaxial
 from pardem.parallel.communicator import Communicator
 
 p = argparse.ArgumentParser()

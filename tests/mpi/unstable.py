@@ -2,7 +2,7 @@
 (argv[1]), so that the run blows up; the remaining arguments go to the driver."""
 import sys
 
-import pardem.compression as compression
+import pardem.protocols.compression as compression
 
 _true_bound = compression.critical_time_step
 compression.critical_time_step = lambda *args: float(sys.argv[1]) * _true_bound(*args)

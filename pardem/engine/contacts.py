@@ -15,7 +15,7 @@ those travel (an intact cement keeps its row non-zero, so it travels too).
 
 Cemented pairs apart: a pair is listed while its centre distance is below ``R_i + R_j + skin`` at
 a rebuild, and computed until the next rebuild whatever its distance. An intact cement is kept
-listed as long as its gap stays below the skin; ``pardem.cement`` refuses parameters for which a
+listed as long as its gap stays below the skin; ``pardem.engine.cement`` refuses parameters for which a
 cement could survive a gap of ``skin`` (its normal stretch at rupture ``sqrt(2 E_th / Sn)`` must be
 below the skin), so no intact cement is ever dropped by a rebuild. A fading (broken) cement whose
 spheres separate beyond the reach is dropped with its remaining fraction of force.

@@ -12,14 +12,11 @@ import time as _time
 
 import numpy as np
 
+from pardem.engine.errors import InjectedFault, InstabilityError
 from pardem.physics import walls
 from pardem.physics.beam import compute_bonds
 from pardem.physics.viscous_damping import damp_elements
 from pardem.physics.verlet import kick, kick_drift, kinetic_energy
-
-
-class InjectedFault(RuntimeError):
-    """Raised on purpose by ``FaultInjection`` (tests of failure handling)."""
 
 
 class FaultInjection:
@@ -42,17 +39,13 @@ class FaultInjection:
             raise InjectedFault(f"fault injected on rank {self.rank} at step {self.step} (PARDEM_FAULT)")
 
 
-class InstabilityError(RuntimeError):
-    """The motion blew up (NaN, runaway speed, overstretched bond): the run must stop."""
-
-
 class Simulation:
     """Bonded and contacting elements (between plates, or in a periodic cell) on one rank.
 
     dt [s] must already be checked against the critical step. ``max_speed`` [m/s] is the speed
     above which the run is declared unstable (default: far above any physical DEM speed).
-    Optional parts: ``plates`` (``state.Plates``), ``contacts`` (``pardem.contacts.Contacts``),
-    ``cell`` (``pardem.periodic_cell.PeriodicCell``), ``viscous_damping`` rate C [1/s] (global
+    Optional parts: ``plates`` (``state.Plates``), ``contacts`` (``pardem.engine.contacts.Contacts``),
+    ``cell`` (``pardem.engine.periodic_cell.PeriodicCell``), ``viscous_damping`` rate C [1/s] (global
     drag ``-C m v``, ``-C I w``, for sample preparation).
     """
 

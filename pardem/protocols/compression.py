@@ -9,24 +9,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pardem.bonding import BeamMaterial, make_bonds
+from pardem.engine.bonding import BeamMaterial, make_bonds
 from pardem.config import DeckError, physics_differences
 from pardem.io import checkpoint
 from pardem.io.checkpoint import BOND_DATASETS, CONTACT_DATASETS, ELEMENT_DATASETS
 from pardem.domains import compact
-from pardem.contacts import Contacts, pair_keys
+from pardem.engine.contacts import Contacts, pair_keys
 from pardem.domains.ordered import ordered_lattice
-from pardem.granular import LAWS as CONTACT_LAWS
-from pardem.granular import critical_time_step as contact_critical_time_step
-from pardem.granular import law_params
+from pardem.engine.granular import LAWS as CONTACT_LAWS
+from pardem.engine.granular import critical_time_step as contact_critical_time_step
+from pardem.engine.granular import law_params
 from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs, choose_axis
 from pardem.physics import walls
 from pardem.physics.anisotropy import lrt_frame
 from pardem.physics.timestep import critical_time_step, eigen_bound, max_tau
-from pardem.reducer import Reducer, young_and_poisson
-from pardem.simulation import Simulation
-from pardem.state import FLAG_NEAR_PLATE, Bonds, Elements, Plates
+from pardem.engine.reducer import Reducer, young_and_poisson
+from pardem.engine.simulation import Simulation
+from pardem.engine.state import FLAG_NEAR_PLATE, Bonds, Elements, Plates
 
 NEAR_PLATE_GAP = 0.5   # elements closer than this many radii to a plate at the start: not in the strain fit
 

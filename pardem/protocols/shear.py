@@ -21,12 +21,12 @@ interior elements are free (translation and rotation) and find that state throug
 the bond damping.
 
 Measurement (global sums, the same on any number of ranks): the shear strain ``gamma = H_ab + H_ba``
-from the least-squares displacement gradient of the free elements (``pardem.reducer``), and the shear
+from the least-squares displacement gradient of the free elements (``pardem.engine.reducer``), and the shear
 stress ``sigma_ab = -F_a / A`` with ``F_a`` the sum of the forces on every element above the mid-plane
 between the two central layers normal to b (the internal forces of that set cancel, so it is the
 force of the bonds crossing the plane), ``A`` the represented section normal to b. ``shear_modulus``
 is the slope of ``sigma_ab`` against ``gamma`` over the constant-rate phase (it removes the constant
-viscous stress of the bond damping, like ``pardem.compression.measure``); ``shear_modulus_secant`` is
+viscous stress of the bond damping, like ``pardem.protocols.compression.measure``); ``shear_modulus_secant`` is
 ``sigma_ab / gamma`` at the end.
 
 Known limitation: the driven elements turn by the continuum's rotation gamma / 2. That is the
@@ -40,11 +40,11 @@ import math
 
 import numpy as np
 
-from pardem.calibration import SHEAR_PLANES, as_lrt, lattice_shear_modulus
-from pardem.compression import build_case
+from pardem.protocols.calibration import SHEAR_PLANES, as_lrt, lattice_shear_modulus
+from pardem.protocols.compression import build_case
 from pardem.config import COMPRESS_SCHEMA, DeckError, check_deck, raw_deck
-from pardem.reducer import gradient_from_sums, strain_sums
-from pardem.state import FLAG_NEAR_PLATE
+from pardem.engine.reducer import gradient_from_sums, strain_sums
+from pardem.engine.state import FLAG_NEAR_PLATE
 
 
 def shear_history(t, rate, ramp):

@@ -10,7 +10,7 @@ negative strain; plate forces are positive in compression.
 import numpy as np
 from numba import njit
 
-from pardem.state import FLAG_NEAR_PLATE
+from pardem.engine.state import FLAG_NEAR_PLATE
 
 
 @njit(cache=True, error_model="numpy")

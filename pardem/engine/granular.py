@@ -8,7 +8,7 @@ case. Used by the GRAN benchmark, the granular tests and the granular drivers.
 Between steps a driver may switch the contact parameters (``set_contact_params``: e.g. friction
 after a frictionless preparation, or cemented Hertz-Mindlin contacts, whose history is wider) and
 the global damping (``set_viscous_damping``); both update the restart constants, so a checkpoint
-written afterwards restarts with them. Cementation itself is ``pardem.cement``.
+written afterwards restarts with them. Cementation itself is ``pardem.engine.cement``.
 
 The contact history lives in the checkpoint as each rank's list (see ``pardem.io.checkpoint``), so
 a restart on the same number of ranks continues bit for bit; on another number of ranks the lists
@@ -18,16 +18,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pardem.contacts import Contacts, pair_keys
+from pardem.engine.contacts import Contacts, pair_keys
 from pardem.io import checkpoint
 from pardem.io.checkpoint import CONTACT_DATASETS, ELEMENT_DATASETS
 from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs
-from pardem.periodic_cell import PeriodicCell
+from pardem.engine.periodic_cell import PeriodicCell
 from pardem.physics import hertz_mindlin, linear_contact
 from pardem.physics.timestep import linear_contact_time_step, rayleigh_time_step
-from pardem.simulation import Simulation
-from pardem.state import Bonds, Elements
+from pardem.engine.simulation import Simulation
+from pardem.engine.state import Bonds, Elements
 
 LAWS = {"hertz_mindlin": hertz_mindlin, "linear": linear_contact}
 
@@ -82,7 +82,7 @@ def cement_time_step(params, r_min, density):
 
 def set_contact_params(case, params):
     """Switch every rank's contact parameters (dict, same law) between steps, e.g. friction after a
-    frictionless preparation or the cement springs before ``pardem.cement.cement_contacts``; the
+    frictionless preparation or the cement springs before ``pardem.engine.cement.cement_contacts``; the
     history is widened as the law needs, and the restart constants follow."""
     c = case.constants
     prm = law_params(c["law"], params)

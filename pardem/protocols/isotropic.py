@@ -12,7 +12,7 @@ Protocol (driver ``python -m pardem.drivers.isotropic``; ``prepare`` is the reus
    is the strain rate at a pressure error of 100 %), capped at ``preparation.max_rate`` [1/s] and
    its gain at ``1 / (2 S dt)`` (``ServoStiffness``: without it the loop overshoots and diverges
    once the packing is stiff, e.g. 2,000 glass spheres at 10 kPa), with
-   the kinetic energy removed by FIRE (``preparation.relaxation = "fire"``, ``pardem.relaxation``)
+   the kinetic energy removed by FIRE (``preparation.relaxation = "fire"``, ``pardem.engine.relaxation``)
    or by the global viscous damping ``-C m v``, ``-C I w`` (``"viscous"``, ``preparation.damping`` =
    C [1/s]). FIRE adapts its time step: up to ``preparation.fire_max_dt`` times the run's step and
    to half the Verlet limit of the current contacts (their stiffness grows with the overlap, so at
@@ -72,11 +72,11 @@ import time
 
 import numpy as np
 
-from pardem import granular
+from pardem.engine import granular
 from pardem.config import DeckError, Field, auto_or, boolean, choice, number, number_list, positive
 from pardem.physics import hertz_mindlin
-from pardem.reducer import granular_measures
-from pardem.relaxation import Fire
+from pardem.engine.reducer import granular_measures
+from pardem.engine.relaxation import Fire
 
 ROW_KEYS = ("p0", "p", "Z", "Z_no_rattlers", "solid_fraction", "K_affine", "K_relaxed", "mu_affine",
             "mu_relaxed")
@@ -110,7 +110,7 @@ SCHEMA = {
         "max_rate": Field(1000.0, positive(), "largest strain rate of the servo [1/s] (the gas compression rate)"),
         "relaxation": Field("fire", choice("viscous", "fire"),
                             "how the kinetic energy is removed during preparation: fire (FIRE "
-                            "quench, pardem.relaxation; no drag) or viscous (global drag C)"),
+                            "quench, pardem.engine.relaxation; no drag) or viscous (global drag C)"),
         "fire_max_dt": Field(10.0, number(1.0, 100.0, hi_open=False),
                              "FIRE's largest time step, as a multiple of the run's (run.dt_fraction); "
                              "the step also stays below half the Verlet limit of the current contacts"),

@@ -1,6 +1,6 @@
 """Triaxial test of a cemented granular packing in a periodic cell (PHYSICS.md sections 8, 11, 12).
 
-Protocol (all on ``pardem.granular`` cases, any number of ranks):
+Protocol (all on ``pardem.engine.granular`` cases, any number of ranks):
 
 1. **Preparation** (minimal; ``prepare``): ``N = per_edge^3`` spheres, radii uniform in
    ``R (1 +- dispersity)``, on a jittered cubic lattice at solid fraction ``gas_fraction`` with random
@@ -12,7 +12,7 @@ Protocol (all on ``pardem.granular`` cases, any number of ranks):
 2. **Cementation** (``cement``): the loading friction and the cement springs are switched on (the
    forces do not change: the cement starts unstressed), the damping is removed and every contact
    gets an intact cement with ``delta0`` its current overlap and a rupture energy drawn uniformly in
-   ``threshold_mean +- threshold_half_width`` (``pardem.cement``: a function of the seed and the gid
+   ``threshold_mean +- threshold_half_width`` (``pardem.engine.cement``: a function of the seed and the gid
    pair, so 1 and N ranks agree).
 3. **Triaxial loading** (``load``): the axial edge shortens at ``strain_rate`` (``dL/dt = -rate L``,
    the cell's diagonal rate; the loading stops when ``1 - L / L0`` reaches ``strain``), the two
@@ -31,11 +31,11 @@ import time
 
 import numpy as np
 
-from pardem import cement as cementing
-from pardem import granular
+from pardem.engine import cement as cementing
+from pardem.engine import granular
 from pardem.config import Field, boolean, choice, number, positive
-from pardem.periodic_cell import PeriodicCell
-from pardem.simulation import InstabilityError  # noqa: F401  (re-exported for the driver)
+from pardem.engine.periodic_cell import PeriodicCell
+from pardem.engine.errors import InstabilityError  # noqa: F401  (re-exported for the driver)
 
 AXES = "xyz"
 

@@ -8,7 +8,7 @@ import sys
 
 from pardem.config import DeckError, describe, load_deck
 from pardem.parallel.communicator import report_and_abort
-from pardem.simulation import InstabilityError
+from pardem.engine.errors import InstabilityError
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_UNSTABLE = 0, 1, 2, 3
 

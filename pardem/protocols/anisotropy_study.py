@@ -15,7 +15,7 @@ packing stays, only its frame rotates), compared with Hankinson's prediction
 
 Loading rate: each case moves its plate so that the nominal strain is reached after ``transits``
 axial wave transits (``CompressionCase.transit_time``) plus half the ramp; the modulus is the
-quasi-static slope of ``pardem.compression.measure``. The strain is small (the response is linear).
+quasi-static slope of ``pardem.protocols.compression.measure``. The strain is small (the response is linear).
 
 Failed measurements: a case is ``ok`` only if both plates still push at the end, the loaded faces
 stay flat and normal to the load (``|H[a, b]| <= FACE_TILT_MAX |H[a, a]|``, b != a: the domain did
@@ -52,10 +52,10 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from pardem.compression import SeriesSampler, build_case, measure
+from pardem.protocols.compression import SeriesSampler, build_case, measure
 from pardem.config import COMPRESS_SCHEMA, DeckError, check_deck, raw_deck
 from pardem.domains.compact import compact_packing
-from pardem.simulation import InstabilityError
+from pardem.engine.errors import InstabilityError
 
 LAWS = ("TOR", "hankinson", "linear", "spherical")
 KINDS = ("ordered", "compact")

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pardem.physics import anisotropy
-from pardem.state import Bonds
+from pardem.engine.state import Bonds
 
 
 @dataclass(frozen=True)

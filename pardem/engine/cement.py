@@ -12,7 +12,7 @@ generator: the SplitMix64 finaliser of Steele, Lea and Flood, OOPSLA 2014), so a
 ranks (one end a ghost) gets bitwise the same cement on both, and 1 and N ranks agree.
 
 Reach: a cement must not survive a gap as large as the Verlet skin, or a list rebuild could drop the
-pair while intact (``pardem.contacts``). Its normal stretch at rupture is at most
+pair while intact (``pardem.engine.contacts``). Its normal stretch at rupture is at most
 ``sqrt(2 E_th,max / Sn)`` (the energy's normal part alone), so ``cement_contacts`` refuses
 ``sqrt(2 (mean + half_width) / Sn) >= skin``.
 """

@@ -1,0 +1,1 @@
+"""Test protocols: each builds its case from a deck, adds its operations and measures its results."""
