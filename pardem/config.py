@@ -159,7 +159,7 @@ def boolean(name, v):
     return v
 
 
-# The compress driver's deck. Defaults are the default case (PHYSICS.md W study cube).
+# The compress driver's deck. Defaults are the default case (docs/physics.md W study cube).
 COMPRESS_SCHEMA = {
     "domain": {
         "kind": Field("ordered", choice("ordered", "compact"),
@@ -172,7 +172,7 @@ COMPRESS_SCHEMA = {
         "density": Field(1000.0, positive(),
                          "element density rho_e [kg/m^3], used as given for both kinds; the represented "
                          "continuum's density is rho_e times the solid fraction (pi/6 ordered, 0.63-0.64 "
-                         "compact), PHYSICS.md section 1"),
+                         "compact), docs/physics.md section 1"),
         "tilt_deg": Field(0.0, number(-90.0, 90.0, lo_open=False, hi_open=False),
                           "tilt of the LRT frame about T (z) [deg]; ordered: the lattice turns with it"),
         "seed": Field(0, number(lo=0, lo_open=False, integer=True),
@@ -197,7 +197,7 @@ COMPRESS_SCHEMA = {
                                 "0 = unbreakable in shear"),
         "densification_stress": Field(0.0, number(lo=0.0, lo_open=False),
                                       "densification threshold sigma0 [Pa] of the bonds initially along "
-                                      "T, in compression (PHYSICS.md section 7); 0 = elastic"),
+                                      "T, in compression (docs/physics.md section 7); 0 = elastic"),
         "densification_p0": Field(0.05, positive(),
                                   "densification factor p0: the threshold grows as exp(p / p0) with "
                                   "the plastic strain p"),

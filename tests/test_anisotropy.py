@@ -1,10 +1,10 @@
-"""Anisotropy laws (pardem.physics.anisotropy), PHYSICS.md section 3.
+"""Anisotropy laws (pardem.physics.anisotropy), docs/physics.md section 3.
 
 Every law returns exactly E_L, E_R, E_T along the L, R, T axes (untilted and tilted frames); the laws
 depend on the direction only through |u.L|, |u.R|, |u.T| (u and -u, mirror images through the
 material planes give the same value); Hankinson's law matches its closed form at 45 degrees in each
 material plane; TOR picks the nearest axis (brute-force distance to +-axes); all four laws agree with an
-independent transcription of the PHYSICS.md formulas at random directions.
+independent transcription of the docs/physics.md formulas at random directions.
 """
 import numpy as np
 import pytest
@@ -81,7 +81,7 @@ def test_tor_picks_nearest_axis():
 
 
 def _spec(law, u, frame, vL, vR, vT):
-    """PHYSICS.md section 3 transcribed independently (theta from atan2, phi in the RT plane)."""
+    """docs/physics.md section 3 transcribed independently (theta from atan2, phi in the RT plane)."""
     c = np.abs(u @ frame.T)
     theta = np.arctan2(np.hypot(c[:, 1], c[:, 2]), c[:, 0])
     phi = np.arctan2(c[:, 2], c[:, 1])

@@ -1,4 +1,4 @@
-"""Beam bond kernel (pardem.physics.beam), PHYSICS.md section 2.
+"""Beam bond kernel (pardem.physics.beam), docs/physics.md section 2.
 
 Checks a two-element beam against textbook results (axial E S / L0, torsion G I0 / L0, cantilever
 tip deflection P L^3 / (3 E I) and rotation P L^2 / (2 E I)), the force and moment balance of the bond,
@@ -335,7 +335,7 @@ def test_bending_damping_ratio():
 
     The mode's coordinate is the relative rotation th = th2 - th1 about a normal to the bond; with
     the reduced inertia i* = I1 I2 / (I1 + I2) it obeys i* th'' = -(E I / L0) th - c th', and
-    PHYSICS.md section 2 asks c = 2 zeta sqrt(k i*) with this mode's k = E I / L0, i.e. ratio zeta.
+    docs/physics.md section 2 asks c = 2 zeta sqrt(k i*) with this mode's k = E I / L0, i.e. ratio zeta.
     """
     zeta = 0.2
     e, b = two_elements((1.0, 0.0, 0.0), R1, R1, YOUNG, RR, NU, zeta)

@@ -1,4 +1,4 @@
-"""The calibration of PHYSICS.md section 6 and the calibrate driver (deck, report, verification on 2 ranks)."""
+"""The calibration of docs/physics.md section 6 and the calibrate driver (deck, report, verification on 2 ranks)."""
 import json
 import math
 import os
@@ -19,7 +19,7 @@ MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BEECH = os.path.join(ROOT, "drivers", "calibrate_beech.toml")
 
-# W's calibrated beech bonds (PHYSICS.md section 6)
+# W's calibrated beech bonds (docs/physics.md section 6)
 W_L = (1.1072e11, 0.33)
 W_T = (7.73e8, 1.14)
 
@@ -174,7 +174,7 @@ def test_quick_verification_on_two_ranks(tmp_path):
     assert G["relative_error"] == pytest.approx(-0.5, abs=0.01)       # section 6 is twice the lattice's G
     assert v["runs"]["shear"]["gamma"] == pytest.approx(0.002, rel=0.01)
     # rank 0 alone prints
-    assert p.stdout.count(": calibration (PHYSICS.md") == p.stdout.count("round trip") == 1
+    assert p.stdout.count(": calibration (docs/physics.md") == p.stdout.count("round trip") == 1
     assert p.stdout.count("calibration.json in") == 1
     # the written deck is the compress driver's
     deck = load_deck(COMPRESS_SCHEMA, str(out / calibrate.DECK_NAME))

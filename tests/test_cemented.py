@@ -1,4 +1,4 @@
-"""Cemented Hertz-Mindlin contacts (PHYSICS.md section 8) against their analytic form: one pair.
+"""Cemented Hertz-Mindlin contacts (docs/physics.md section 8) against their analytic form: one pair.
 
 Normal stiffness = Hertz tangent stiffness + Sn (central differences), tension carried when the
 spheres are apart, rupture at the first step whose stored energy exceeds the threshold (pure normal

@@ -1,4 +1,4 @@
-"""Compact domains (PHYSICS.md section 4): jammed random packings, their bonds, their compression.
+"""Compact domains (docs/physics.md section 4): jammed random packings, their bonds, their compression.
 
 Packings are checked against independent O(N^2) NumPy computations (overlaps with minimum images,
 bonded pairs, clusters), against the jamming physics (an at least isostatic contact network) and

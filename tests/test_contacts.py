@@ -1,5 +1,5 @@
 """Sphere-sphere contact laws (pardem.physics.hertz_mindlin, linear_contact, contact_frame,
-viscous_damping), PHYSICS.md section 8, each against an independent analytic result.
+viscous_damping), docs/physics.md section 8, each against an independent analytic result.
 
 Head-on Hertz impact
     ``m* d''(delta) = -K delta^(3/2)``, ``K = 4/3 E* sqrt(R*)``, ``delta(0) = 0``, ``delta'(0) = v``
@@ -21,7 +21,7 @@ Linear spring-dashpot restitution
     solution of the damped oscillator; the simulation must rebound at ``e v``).
 Coulomb and stiffness
     ``|ft| = mu fn`` once sliding, ``ft = kt s`` before, ``kt = 4 G/(2 - nu) sqrt(R* delta)`` written
-    with the identical-grain formula of PHYSICS.md (independent of the general ``G*`` code path).
+    with the identical-grain formula of docs/physics.md (independent of the general ``G*`` code path).
 Rigid rotation, Newton's third law, angular momentum
     exact identities of any objective contact law.
 Elastic gas
@@ -42,7 +42,7 @@ from _util import perpendicular, random_unit, rotmat
 
 YOUNG, NU, RHO = 1.0e9, 0.3, 2500.0
 SHEAR = YOUNG / (2.0 * (1.0 + NU))
-E_STAR_SAME = SHEAR / (1.0 - NU)          # identical grains, PHYSICS.md
+E_STAR_SAME = SHEAR / (1.0 - NU)          # identical grains, docs/physics.md
 HERTZ_INTEGRAL = 0.4 * Gamma(0.4) * Gamma(0.5) / Gamma(0.9)   # int_0^1 dx / sqrt(1 - x^2.5)
 
 
@@ -57,7 +57,7 @@ def hertz_duration(m_star, r_star, e_star, v):
 
 
 def mindlin_kt_same(r_star, delta):
-    """PHYSICS.md: kt = 4 G / (2 - nu) sqrt(R* delta) for identical grains."""
+    """docs/physics.md: kt = 4 G / (2 - nu) sqrt(R* delta) for identical grains."""
     return 4.0 * SHEAR / (2.0 - NU) * np.sqrt(r_star * delta)
 
 

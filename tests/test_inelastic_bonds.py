@@ -1,4 +1,4 @@
-"""Inelastic beam bonds (PHYSICS.md section 7): densification of the bonds along T and rupture.
+"""Inelastic beam bonds (docs/physics.md section 7): densification of the bonds along T and rupture.
 
 Single bonds driven kinematically (positions prescribed, the kernel called once per increment, as
 the engine does once per step) are compared with the analytic laws:

@@ -1,4 +1,4 @@
-"""Velocity Verlet with the exact quaternion update (pardem.physics.verlet), PHYSICS.md section 10.
+"""Velocity Verlet with the exact quaternion update (pardem.physics.verlet), docs/physics.md section 10.
 
 A free element spinning at constant angular velocity ends at the exact rotation exp(w t) q0; an
 undamped bonded lattice vibrating freely (plates far away) conserves its total energy (kinetic +

@@ -1,4 +1,4 @@
-"""Ordered cubic lattice (pardem.domains.ordered), PHYSICS.md section 4.
+"""Ordered cubic lattice (pardem.domains.ordered), docs/physics.md section 4.
 
 The W cube (10 mm, R = 0.2381 mm) has 21^3 elements and 3 * 21 * 21 * 20 bonds; bonds join face
 neighbours at distance 2R, without duplicates, with the element degrees a brute-force count gives;

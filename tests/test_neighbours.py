@@ -1,4 +1,4 @@
-"""Cell list + Verlet list (pardem.physics.neighbours), PHYSICS.md section 9.
+"""Cell list + Verlet list (pardem.physics.neighbours), docs/physics.md section 9.
 
 Every build is compared with a brute-force O(N^2) NumPy oracle (all pairs within R_i + R_j + skin,
 minimum image along periodic axes, at least one owned row) as sets of global-id pairs, which must be

@@ -1,4 +1,4 @@
-"""Least-squares strain and moduli (pardem.engine.reducer), PHYSICS.md section 5.
+"""Least-squares strain and moduli (pardem.engine.reducer), docs/physics.md section 5.
 
 The fit U = H X0 + c is exact on affine displacement fields, equals NumPy's least squares on
 non-affine ones, ignores elements flagged FLAG_NEAR_PLATE and ghost rows, gives the same result when

@@ -1,4 +1,4 @@
-"""Critical time step (pardem.physics.timestep), PHYSICS.md section 10.
+"""Critical time step (pardem.physics.timestep), docs/physics.md section 10.
 
 The stiffness matrix K of small bonded lattices (with and without plates) is built by central finite
 differences of the kernel forces and moments over all 6N degrees of freedom (rotations as world-frame

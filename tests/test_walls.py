@@ -1,4 +1,4 @@
-"""Element-wall contact (pardem.physics.walls), PHYSICS.md sections 5 and 8, against independent results.
+"""Element-wall contact (pardem.physics.walls), docs/physics.md sections 5 and 8, against independent results.
 
 Normal laws
     Hertz sphere-plane ``fn = 4/3 E* sqrt(R) delta^(3/2)`` with ``1/E* = (1 - nu^2)/E + (1 - nu_w^2)/E_w``

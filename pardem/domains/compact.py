@@ -1,5 +1,5 @@
 """Compact domains: dense random packings of polydisperse spheres, bonded where they touch.
-PHYSICS.md section 4.
+docs/physics.md section 4.
 
 Protocol: soft-sphere jamming (O'Hern et al. 2003), standard, fast and well understood; it gives a
 homogeneous, statistically isotropic packing.
@@ -65,7 +65,7 @@ from numba import njit
 from pardem.physics.neighbours import VerletList, build_pairs
 
 TARGET_FRACTION = 0.64      # sets the element count; the packing ends at its own jamming fraction
-MIN_FRACTION = 0.63         # guaranteed solid fraction (PHYSICS.md section 4)
+MIN_FRACTION = 0.63         # guaranteed solid fraction (docs/physics.md section 4)
 QUENCH_FRACTION = 0.66      # first minimisation, from the random centres: above jamming
 START_STEP = 0.01           # first change of the solid fraction
 FRACTION_TOLERANCE = 1e-4   # relative step at which the bisection stops

@@ -1,4 +1,4 @@
-"""Ordered cubic lattice of touching spheres, optionally tilted in the LR plane. PHYSICS.md section 4.
+"""Ordered cubic lattice of touching spheres, optionally tilted in the LR plane. docs/physics.md section 4.
 
 Centres sit on a cubic grid of spacing 2R whose axes are the rows of the LRT frame (tilted by ``xi``
 about T = z). The grid passes through the box's lattice-aligned centre site, and every element whose

@@ -1,4 +1,4 @@
-"""Calibration of the beam bonds from target domain properties (PHYSICS.md section 6), with a check.
+"""Calibration of the beam bonds from target domain properties (docs/physics.md section 6), with a check.
 
     python -m pardem.drivers.calibrate [--config targets.toml] [--set section.key=value ...]
                                        [--out DIR] [--verify] [--quick] [--quiet]
@@ -195,7 +195,7 @@ def deck_text(raw, header):
 def _header(targets, cal, deck, config):
     E = targets.young()
     lines = [f"Compress deck calibrated by `python -m pardem.drivers.calibrate` (pardem {pardem.__version__})",
-             f"from {config or 'the built-in targets'} (PHYSICS.md section 6, ordered lattice):",
+             f"from {config or 'the built-in targets'} (docs/physics.md section 6, ordered lattice):",
              f"  targets: E_L^D = {E[0]:.6g} Pa, E_R^D = {E[1]:.6g} Pa, E_T^D = {E[2]:.6g} Pa, "
              f"G^D = {targets.shear:.6g} Pa, rho_D = {targets.density:.6g} kg/m^3",
              f"  tensile strength^D (L, R, T) = {list(targets.tensile_strength)} Pa, shear strength^D = "
@@ -251,7 +251,7 @@ def run(comm, args):
         with open(os.path.join(out, DECK_NAME), "w") as fh:
             fh.write(deck_text(raw, _header(targets, cal, deck, args.config)))
         b = cal
-        print(f"pardem {pardem.__version__}: calibration (PHYSICS.md section 6): E^mu (L, R, T) = "
+        print(f"pardem {pardem.__version__}: calibration (docs/physics.md section 6): E^mu (L, R, T) = "
               f"{', '.join(f'{x:.5g}' for x in b.young)} Pa, r (L, R, T) = "
               f"{', '.join(f'{x:.4g}' for x in b.radius_ratio)}, element density {b.element_density:.5g} kg/m^3; "
               f"wrote {os.path.join(out, DECK_NAME)}", flush=True)

@@ -1,7 +1,7 @@
 """Creating beam bonds between element pairs: geometry, anisotropic properties, damping.
 
 The bond's modulus and radius follow the anisotropy law of ``BeamMaterial`` in the LRT ``frame``
-(PHYSICS.md sections 2 and 3). Reference vectors are stored in each end's body frame at creation.
+(docs/physics.md sections 2 and 3). Reference vectors are stored in each end's body frame at creation.
 """
 from dataclasses import dataclass
 
@@ -17,7 +17,7 @@ class BeamMaterial:
 
     poisson : bond Poisson ratio, G = E / (2 (1 + poisson)); damping : ratio zeta of each mode.
     tensile_strength, shear_strength [Pa] : rupture thresholds on F / S and |T| / S, scalar or
-        (L, R, T) values following ``law`` (PHYSICS.md section 7); 0 = unbreakable.
+        (L, R, T) values following ``law`` (docs/physics.md section 7); 0 = unbreakable.
     densification_stress [Pa] : threshold sigma0 of the bonds initially along T (the frame axis
         closest to the bond is T); 0 = elastic. densification_p0 : the factor p0 of section 7.
     """

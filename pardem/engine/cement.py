@@ -1,4 +1,4 @@
-"""Cementation of the current contacts of a granular case (PHYSICS.md section 8, G ch. 7).
+"""Cementation of the current contacts of a granular case (docs/physics.md section 8, G ch. 7).
 
 Every listed pair in contact (overlap ``delta > 0``) gets an intact cement: ``delta0 = delta`` (the
 springs start unstressed), a zero cement tangential force and a rupture energy ``E_th`` drawn from the

@@ -1,13 +1,13 @@
 """A periodic cell that may deform at a homogeneous diagonal strain rate, with a pressure servo.
 
-PHYSICS.md sections 11 and 12. The cell is the box ``[lo, lo + L)`` along its periodic axes. When it
+docs/physics.md sections 11 and 12. The cell is the box ``[lo, lo + L)`` along its periodic axes. When it
 deforms at the diagonal rate ``g`` [1/s] (engineering rate of the edge lengths, positive in
 extension), every step maps the owned positions affinely, ``x <- lo + (x - lo)(1 + g dt)``, and the
 edges ``L <- L (1 + g dt)``. Velocities stay the fluctuations about that affine field (so the
 kinetic energy is the granular temperature's), and the contact kernels add the affine relative
 motion ``-g d`` of each pair (``contact_frame.affine_motion``).
 
-Servo-control of the mean stress (PHYSICS.md section 12): ``g = gain (p - p0)`` on every axis with
+Servo-control of the mean stress (docs/physics.md section 12): ``g = gain (p - p0)`` on every axis with
 ``p = -trace(sigma) / 3`` the pressure (positive in compression) from the Love-Weber stress, so the
 cell expands when the packing is above the target pressure and shrinks below it; ``|g|`` is capped
 by ``max_rate``. Units: ``gain`` [1/(Pa s)], ``p0`` [Pa]. The loop is discrete: one step changes
@@ -17,7 +17,7 @@ stiff packing at low pressure (Hertz: ``S / p`` grows as ``p^(-2/3)``) or a long
 When the caller sets ``servo_stiffness = S`` (``Contacts.stiffness``), ``control`` therefore uses
 ``min(gain, 1 / (2 S dt))``, which at most halves the error per step and does not overshoot.
 
-Triaxial control (PHYSICS.md section 12; ``triaxial_servo``): the axial axis ``a`` deforms at an
+Triaxial control (docs/physics.md section 12; ``triaxial_servo``): the axial axis ``a`` deforms at an
 imposed rate (negative: compression), and each lateral axis ``b`` servos its own normal stress to the
 confining pressure, ``g_b = gain (-sigma_bb - pc)`` capped by ``max_rate``, so the lateral stress is
 held at ``sigma_bb = -pc`` (tension positive).

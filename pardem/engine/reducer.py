@@ -1,4 +1,4 @@
-"""Global measurements: plate forces and the least-squares strain. PHYSICS.md section 5.
+"""Global measurements: plate forces and the least-squares strain. docs/physics.md section 5.
 
 Each rank sums over its owned elements; one ``Communicator.sum`` completes the sums, so results do
 not depend on the number of ranks beyond floating-point summation order.
@@ -133,7 +133,7 @@ def overlap_volume(x, radius, pi, pj, shift, periodic, n_owned):
 
 
 def granular_measures(sim):
-    """Global state of a granular ``Simulation`` in a periodic cell (collective). PHYSICS.md 11.
+    """Global state of a granular ``Simulation`` in a periodic cell (collective). docs/physics.md 11.
 
     Returns a dict: ``stress`` [3, 3] [Pa], the Love-Weber stress of the contacts of the last force
     evaluation, tension positive; ``pressure`` = -trace / 3 [Pa] (compression positive); ``Z`` =

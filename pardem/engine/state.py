@@ -126,7 +126,7 @@ class Bonds:
     state : ``BOND_INTACT``, or how it broke (``BOND_BROKEN_TENSION``, ``BOND_BROKEN_SHEAR``); a
         broken bond stays in the arrays (for output and checkpoints) and exerts nothing.
     f_tensile, f_shear [N] : rupture thresholds on the axial tension ``F`` and the shear force
-        ``|T|`` (strength times section S; inf = unbreakable), PHYSICS.md section 7.
+        ``|T|`` (strength times section S; inf = unbreakable), docs/physics.md section 7.
     f_yield [N] : densification threshold ``sigma0 S`` in compression (0 = elastic bond);
         plastic : its plastic (compressive) strain p >= 0.
     damped : False when every tau is zero (the force loop then skips the damping terms).

@@ -1,4 +1,4 @@
-"""Slab boundaries along one axis and their load balancing. PHYSICS.md section 13.
+"""Slab boundaries along one axis and their load balancing. docs/physics.md section 13.
 
 Rank ``r`` owns the elements whose key ``(s, gid)`` (``s`` = centre coordinate along the slab axis)
 lies in ``[cut[r-1], cut[r])`` in lexicographic order, with ``cut[-1] = -inf`` and ``cut[P-1] = +inf``.

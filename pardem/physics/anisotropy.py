@@ -1,4 +1,4 @@
-"""Anisotropic bond properties from the bond direction. PHYSICS.md section 3.
+"""Anisotropic bond properties from the bond direction. docs/physics.md section 3.
 
 Orthotropy frame L, R, T (rows of ``frame``). For a unit bond direction ``u``:
 ``cL, cR, cT = |u.L|, |u.R|, |u.T|``, ``theta = arccos(cL)`` (from L), ``phi = atan2(cT, cR)``

@@ -1,4 +1,4 @@
-"""Euler-Bernoulli beam bond (GranOO style) with viscous bond damping. PHYSICS.md section 2.
+"""Euler-Bernoulli beam bond (GranOO style) with viscous bond damping. docs/physics.md section 2.
 
 Kinematics of one bond joining ends 1 and 2 (ordered by global id):
 
@@ -55,7 +55,7 @@ def _carry_twist_ref(ax, ay, az, nx, ny, nz, rx, ry, rz):
 
 @njit(cache=True, inline="always", error_model="numpy")
 def densified_extension(dL, l0, ka, f_yield, p0, plastic, b):
-    """Elastic extension [m] of a densifying bond (PHYSICS.md section 7); updates ``plastic[b]``.
+    """Elastic extension [m] of a densifying bond (docs/physics.md section 7); updates ``plastic[b]``.
 
     The plastic strain p >= 0 shortens the rest length to ``L0 (1 - p)``, so the trial axial force
     is ``F = ka (dL + L0 p)`` (tension positive, ``ka = E S / L0``). In compression, if the trial

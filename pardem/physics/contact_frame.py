@@ -1,4 +1,4 @@
-"""Kinematics shared by the sphere-sphere contact laws (PHYSICS.md section 8).
+"""Kinematics shared by the sphere-sphere contact laws (docs/physics.md section 8).
 
 Used by ``hertz_mindlin`` and ``linear_contact``; every function is a small inline Numba kernel on
 scalars, so a contact law is written as a fixed sequence of calls (geometry, relative motion,
@@ -15,7 +15,7 @@ Conventions (the same in every contact law of pardem)
 * Contact point: at ``l_i = R_i - delta / 2`` from the centre of i along ``+n`` and ``l_j = R_j - delta/2``
   from the centre of j along ``-n`` (the middle of the overlap lens). The arms add up to ``dist``, which
   makes the tangential slip zero for every rigid motion of the pair and conserves angular momentum
-  exactly; ``l_k`` is the ``R_k`` of PHYSICS.md's torque ``R n x ft`` (they differ by ``delta / 2``).
+  exactly; ``l_k`` is the ``R_k`` of docs/physics.md's torque ``R n x ft`` (they differ by ``delta / 2``).
 * Relative velocity of the contact point of i with respect to that of j::
 
       u = v_i - v_j + (l_i w_i + l_j w_j) x n

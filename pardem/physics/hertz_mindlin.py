@@ -1,4 +1,4 @@
-"""Hertz-Mindlin contact with tangential history and Coulomb friction. PHYSICS.md section 8.
+"""Hertz-Mindlin contact with tangential history and Coulomb friction. docs/physics.md section 8.
 
 Kinematics, sign conventions, the history carry and the output layout are those of
 ``pardem.physics.contact_frame`` (normal ``n`` from i to j, history = elastic tangential force on i).
@@ -22,7 +22,7 @@ Effective moduli (``effective_moduli``), Young's modulus ``E_k`` and Poisson rat
     1/G* = (2 - nu_1)/G_1  + (2 - nu_2)/G_2
 
 so for identical grains ``E* = E / (2 (1 - nu^2)) = G / (1 - nu)`` and ``G* = G / (2 (2 - nu))``, which
-gives ``kt = 8 G* a = 4 G / (2 - nu) sqrt(R* delta)``: PHYSICS.md's same-material Mindlin stiffness.
+gives ``kt = 8 G* a = 4 G / (2 - nu) sqrt(R* delta)``: docs/physics.md's same-material Mindlin stiffness.
 (The source G writes the law with the half overlap and ``Rbar = 2 R*``; it is the same law.)
 
 Damping coefficient
@@ -47,7 +47,7 @@ Returned per call: the elastic energy ``sum 2/5 fn_el delta + |h|^2 / (2 kt)`` [
 energy of the current tangential spring (the incremental Mindlin law is path dependent, so it is a
 state measure, not a potential).
 
-Cemented contacts (PHYSICS.md section 8, G ch. 7)
+Cemented contacts (docs/physics.md section 8, G ch. 7)
 -------------------------------------------------
 With ``cement_normal = Sn > 0`` [N/m] (and ``cement_tangential = St >= 0`` [N/m]) the law is compiled
 with cement terms (``Params.cemented``; the plain kernel is unchanged and carries no cement cost).

@@ -1,4 +1,4 @@
-"""Linear spring-dashpot contact with tangential history and Coulomb friction. PHYSICS.md section 8.
+"""Linear spring-dashpot contact with tangential history and Coulomb friction. docs/physics.md section 8.
 
 Kinematics, sign conventions, the history carry and the output layout are those of
 ``pardem.physics.contact_frame`` (normal ``n`` from i to j, history ``h`` = elastic tangential force
@@ -8,7 +8,7 @@ Laws
 ----
 * normal: ``fn = kn delta + cn d(delta)/dt``, clipped at zero (repulsive only, no tension);
 * tangential: ``dh = -kt ds`` (incremental spring, ``ds = u_t dt``), ``|h| <= mu fn``; the force on i
-  is ``ft = h - ct u_t``, also capped at ``mu fn``. (PHYSICS.md writes ``+ ct v_t``: with ``v_t`` the
+  is ``ft = h - ct u_t``, also capped at ``mu fn``. (docs/physics.md writes ``+ ct v_t``: with ``v_t`` the
   sliding velocity of the partner; the damping always opposes the sliding of the element it acts on.)
 * ``cn = 2 zeta_n sqrt(kn m*)``, ``ct = 2 zeta_t sqrt(kt m*)``, ``m* = m_i m_j / (m_i + m_j)``.
 

@@ -1,4 +1,4 @@
-"""Neighbour search: cell list plus Verlet list with a skin. PHYSICS.md section 9.
+"""Neighbour search: cell list plus Verlet list with a skin. docs/physics.md section 9.
 
 A Verlet list holds every candidate pair ``(i, j)`` of rows whose surfaces are closer than the skin,
 ``|x_j + s L - x_i| < R_i + R_j + skin``. It stays valid, with no pair missed, until some element

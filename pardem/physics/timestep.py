@@ -1,4 +1,4 @@
-"""Critical time step of velocity Verlet for bonded elements and plates. PHYSICS.md section 10.
+"""Critical time step of velocity Verlet for bonded elements and plates. docs/physics.md section 10.
 
 Verlet is stable while ``dt < 2 / omega_max``. The largest eigenvalue ``omega_max^2`` of the
 mass-scaled stiffness ``M^-1/2 K M^-1/2`` is bounded by the block Gershgorin theorem with 3x3 blocks

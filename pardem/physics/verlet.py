@@ -1,4 +1,4 @@
-"""Velocity Verlet for translation and rotation of spheres. PHYSICS.md section 10.
+"""Velocity Verlet for translation and rotation of spheres. docs/physics.md section 10.
 
 One step is ``kick_drift`` (half kick, drift, orientation update, force reset), then the force
 kernels, then ``kick`` (second half kick). Spheres have isotropic inertia, so the world-frame angular

@@ -1,4 +1,4 @@
-"""Global viscous damping of the elements' motion. PHYSICS.md section 8 ("damping options").
+"""Global viscous damping of the elements' motion. docs/physics.md section 8 ("damping options").
 
 Every owned element feels ``f = -C m v`` and ``t = -C I w``: a drag proportional to its own
 (absolute) velocity, used to bring a sample to rest during preparation. It is not frame

@@ -1,6 +1,6 @@
 """Plane walls: element-wall contact with a linear or Hertz normal law and optional friction.
 
-PHYSICS.md sections 5 (plates) and 8 (contact laws). A wall set is any number of infinite planes
+docs/physics.md sections 5 (plates) and 8 (contact laws). A wall set is any number of infinite planes
 (plates, lateral walls) sharing one ``Params``; two sets with different laws are two calls.
 
 Geometry (per call, arrays over the walls ``w`` of the set)

@@ -1,4 +1,4 @@
-"""Calibration of the beam bonds from target domain properties. PHYSICS.md sections 1 and 6.
+"""Calibration of the beam bonds from target domain properties. docs/physics.md sections 1 and 6.
 
 Pure arithmetic (no MPI, no files): target moduli, density and strengths of the represented
 continuum in, bond parameters of the ordered cubic lattice out. Per direction k in (L, R, T), with
@@ -22,7 +22,7 @@ the bending moments of the bonds along a and along b), one bond per area ``l^2``
 (``lattice_shear_modulus``). The calibration keeps section 6 as written (it is the reference); the
 verification measures G and reports both predictions next to the measurement.
 
-References: PHYSICS.md sections 1, 2, 6 (W 4.5, 4.14).
+References: docs/physics.md sections 1, 2, 6 (W 4.5, 4.14).
 """
 import math
 from dataclasses import asdict, dataclass
@@ -51,7 +51,7 @@ CALIBRATE_SCHEMA = {
         "densification_stress": Field(0.0, number(lo=0.0, lo_open=False),
                                       "sigma0^D, densification threshold in compression along T [Pa]; "
                                       "0 = elastic"),
-        "densification_p0": Field(0.05, positive(), "p0 of PHYSICS.md section 7 (dimensionless, not scaled)"),
+        "densification_p0": Field(0.05, positive(), "p0 of docs/physics.md section 7 (dimensionless, not scaled)"),
     },
     "domain": {
         "box": Field([0.01, 0.01, 0.01], triple(positive()), "box of the calibrated deck's ordered domain [m]"),
@@ -155,7 +155,7 @@ def check_targets(t):
 
 
 def calibrate(targets):
-    """Bond parameters of the ordered lattice reproducing ``targets`` (PHYSICS.md section 6).
+    """Bond parameters of the ordered lattice reproducing ``targets`` (docs/physics.md section 6).
 
     Returns a ``BondCalibration``; DeckError on unusable targets.
     """
@@ -175,7 +175,7 @@ def calibrate(targets):
 
 def lattice_young(young, radius_ratio):
     """Domain modulus ``(pi/4) E^mu r^2`` [Pa] of the ordered lattice along a lattice axis whose bonds
-    have modulus ``young`` [Pa] and radius ratio ``radius_ratio`` (PHYSICS.md section 6)."""
+    have modulus ``young`` [Pa] and radius ratio ``radius_ratio`` (docs/physics.md section 6)."""
     return math.pi / 4.0 * young * radius_ratio**2
 
 

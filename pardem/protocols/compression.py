@@ -486,7 +486,7 @@ def _wave_speed(comm, bonds, elements, axis):
 
 
 def _analytic_young(bd, frame, axis):
-    """``pi/4 E r_adim^2`` of the ordered lattice loaded along a lattice axis (PHYSICS.md section 6)."""
+    """``pi/4 E r_adim^2`` of the ordered lattice loaded along a lattice axis (docs/physics.md section 6)."""
     along = np.nonzero(np.isclose(np.abs(frame[:, axis]), 1.0))[0]
     if len(along) != 1:
         return float("nan")

@@ -1,4 +1,4 @@
-"""Isotropic preparation of a granular packing and its elastic moduli. PHYSICS.md sections 8, 11, 12.
+"""Isotropic preparation of a granular packing and its elastic moduli. docs/physics.md sections 8, 11, 12.
 
 Protocol (driver ``python -m pardem.drivers.isotropic``; ``prepare`` is the reusable part):
 
@@ -52,7 +52,7 @@ Protocol (driver ``python -m pardem.drivers.isotropic``; ``prepare`` is the reus
        K  = (p1 - p0) / (-(V1 - V0) / V0)
        mu = ((s_xx - s_yy)_1 - (s_xx - s_yy)_0) / (2 (eps_xx - eps_yy)),   eps_aa = L_a1 / L_a0 - 1
 
-   For an isotropic packing ``mu`` is PHYSICS.md's ``1/2 dsigma_12 / deps_12`` (the shear in the
+   For an isotropic packing ``mu`` is docs/physics.md's ``1/2 dsigma_12 / deps_12`` (the shear in the
    axes turned by 45 deg; the cell supports diagonal rates only). The shear starts from the relaxed
    state of the isotropic increment.
    ``moduli.strain = "auto"`` takes ``e = 0.01 <delta / d>`` (mean over the contacts of overlap over

@@ -1,6 +1,6 @@
 """Simple-shear test of an ordered domain: measures the domain shear modulus G^D of one plane.
 
-Method (chosen for the calibration's verification, PHYSICS.md section 6). Plane (a, b): the shear
+Method (chosen for the calibration's verification, docs/physics.md section 6). Plane (a, b): the shear
 displacement is along axis a, its gradient along axis b (``LT``: a = x, b = z). The engine's compression
 case builds the domain (lattice, bonds, slabs, ghosts, time step); its plates are removed. The elements
 of the two outer layers normal to b *and* of the two outer layers normal to a are driven kinematically
@@ -31,7 +31,7 @@ viscous stress of the bond damping, like ``pardem.protocols.compression.measure`
 
 Known limitation: the driven elements turn by the continuum's rotation gamma / 2. That is the
 interior's rotation only when ``E r^4`` of the bonds along a and b are equal (true for calibrated
-bonds, PHYSICS.md section 6: ``E_k r_k^4 = 16/(3 pi) G^D`` in every direction); otherwise the layers
+bonds, docs/physics.md section 6: ``E_k r_k^4 = 16/(3 pi) G^D`` in every direction); otherwise the layers
 next to the driven ones are perturbed (measured: 13 % below the beam value for ``E r^4`` ten times
 larger along L than along T, plane LT, 8^3 elements).
 """

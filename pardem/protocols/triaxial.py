@@ -1,4 +1,4 @@
-"""Triaxial test of a cemented granular packing in a periodic cell (PHYSICS.md sections 8, 11, 12).
+"""Triaxial test of a cemented granular packing in a periodic cell (docs/physics.md sections 8, 11, 12).
 
 Protocol (all on ``pardem.engine.granular`` cases, any number of ranks):
 
