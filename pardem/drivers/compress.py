@@ -16,17 +16,18 @@ import numpy as np
 
 import pardem
 from pardem.drivers.cli import EXIT_UNSTABLE, driver_parser, fail_usage, read_deck, run_driver
-from pardem.protocols.compression import (CheckpointWriter, Progress, SeriesSampler, build_case, loading_warning,
+from pardem.protocols.compression import (SeriesSampler, build_case, checkpoint_payload, loading_warning,
                                 measure, restore_case)
 from pardem.io import checkpoint
+from pardem.io.checkpoint_writer import CheckpointWriter
 from pardem.io.paraview import ParaViewWriter
+from pardem.io.progress import Progress
 from pardem.config import COMPRESS_SCHEMA, DeckError
 from pardem.io.series import SeriesCSV
 from pardem.io.series_h5 import SeriesH5
 from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator
-from pardem.engine.errors import DecompositionError
-from pardem.engine.errors import InstabilityError
+from pardem.engine.errors import DecompositionError, InstabilityError
 from pardem.engine.simulation import FaultInjection
 
 
@@ -89,13 +90,16 @@ def _run(comm, args, files):
         warning = loading_warning(case)
         if warning:
             print(warning, file=sys.stderr, flush=True)
-        if not args.quiet:
-            sinks.append(Progress(case, n_el, deck["run"]["progress_seconds"], sys.stdout))
     sampler = SeriesSampler(case, every, sinks)
     if sim.step_count == 0:
         sampler(sim)   # the initial state
+    # after the initial sample: the rate is measured from the first sample of the run on
+    progress = Progress(comm, case.n_steps, deck["run"]["progress_seconds"], n_el, quiet=args.quiet)
+    axis = case.axis
+    sampler.sinks.append(lambda s: progress.report(
+        s["step"], f"t = {s['time']:.4e} s  eps = {s['eps'][axis, axis]:+.4e}  F = {s['force_fixed']:.4e} N"))
     ck = deck["checkpoint"]
-    writer = CheckpointWriter(case, os.path.join(out, "checkpoints"), ck["every_steps"],
+    writer = CheckpointWriter(lambda: checkpoint_payload(case), os.path.join(out, "checkpoints"), ck["every_steps"],
                               ck["every_seconds"], ck["keep"], ck["driver"])
     operations = [sampler, writer]
     if deck["output"]["vtk_every"]:

@@ -73,6 +73,8 @@ class Simulation:
         self.stress = np.zeros((3, 3))  # Love-Weber stress of the contacts [Pa] (servo cells only)
         self.bonds_broken_step = 0      # bonds broken by the last force call, counted on this rank
         self.pairs_freed = False        # a bond broke since the last contact list build
+        self.fixes = []                 # objects with post_force(sim): loads, clamps (engine.fixes)
+        self.operations = []            # operations run by every ``run`` (writers, logs, ...)
 
     def compute_forces(self, with_energy=True):
         """Forces and torques of the current configuration (after ``f``, ``t`` were zeroed).
@@ -98,6 +100,8 @@ class Simulation:
             self.contact_energy = self.contacts.compute(e, self.dt, with_energy)
         if self.viscous_damping > 0.0:
             damp_elements(e, self.viscous_damping)
+        for fix in self.fixes:
+            fix.post_force(self)
 
     def rebuild_contacts(self):
         """Single process: wrap into the periodic cell and rebuild the contact list."""
@@ -172,7 +176,9 @@ class Simulation:
         return float(self.comm.sum(kinetic_energy(e.v, e.w, e.mass, e.inertia, e.n_owned)))
 
     def run(self, n_steps, operations=()):
-        """Advance ``n_steps`` steps, running ``operations`` on their periods and at the end."""
+        """Advance ``n_steps`` steps, running ``self.operations`` then ``operations`` on their
+        periods and once more at the end."""
+        operations = list(self.operations) + list(operations)
         if self.step_count == 0:
             if self.contacts is not None and self.domain is None and self.contacts.vl.builds == 0:
                 self.rebuild_contacts()

@@ -510,49 +510,6 @@ def loading_warning(case):
             f"lower loading.plate_speed by a factor {QUASI_STATIC_TRANSITS / ratio:.2g} or more")
 
 
-class CheckpointWriter:
-    """Operation writing checkpoints every ``every_steps`` steps and/or ``every_seconds`` seconds.
-
-    The seconds are measured on rank 0 and its decision is broadcast (every 10 steps), so all ranks
-    write together. Keeps the newest ``keep`` files in ``directory``.
-    """
-    every = 1
-
-    def __init__(self, case, directory, every_steps=0, every_seconds=0.0, keep=3, mode="auto"):
-        self.case, self.directory = case, directory
-        self.every_steps, self.every_seconds = int(every_steps), float(every_seconds)
-        self.keep, self.mode = int(keep), mode
-        self.last_time = time.monotonic()
-        self.last_step = case.sim.step_count
-        self.written = []
-
-    def __call__(self, sim):
-        due = self.every_steps > 0 and sim.step_count % self.every_steps == 0
-        if not due and self.every_seconds > 0 and sim.step_count % 10 == 0:
-            due = sim.comm.bcast(time.monotonic() - self.last_time >= self.every_seconds)
-        if due:
-            self.write(sim)
-
-    def write(self, sim):
-        """Write a checkpoint of the current step now (collective), unless one exists already."""
-        if self.written and self.last_step == sim.step_count:
-            return
-        sim.check_stability()     # never write (and keep) the state of a run that blew up
-        comm = sim.comm
-        if comm.is_root:
-            os.makedirs(self.directory, exist_ok=True)
-        comm.barrier()
-        path = os.path.join(self.directory, checkpoint.checkpoint_name(sim.step_count))
-        groups, series, attrs = checkpoint_payload(self.case)
-        checkpoint.write_checkpoint(path, comm, groups, series, attrs, self.mode)
-        self.written = [p for p in self.written if p != path] + [path]
-        if comm.is_root:
-            checkpoint.prune(self.written, self.keep)
-        self.written = self.written[-self.keep:]
-        self.last_time = time.monotonic()
-        self.last_step = sim.step_count
-
-
 class SeriesSampler:
     """Operation: samples the reducer every ``every`` steps and hands the sample to sinks."""
 

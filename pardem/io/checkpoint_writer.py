@@ -1,0 +1,55 @@
+"""The checkpoint operation: writes a case's checkpoints on a step and/or wall-clock period.
+
+Generic: the case's ``payload()`` gives ``(groups, series, attrs)`` for
+``pardem.io.checkpoint.write_checkpoint``; any protocol whose case can say what to store gets
+checkpoints by adding this operation.
+"""
+import os
+import time
+
+from pardem.io import checkpoint
+
+
+class CheckpointWriter:
+    """Operation writing checkpoints every ``every_steps`` steps and/or ``every_seconds`` seconds.
+
+    payload: ``payload() -> (groups, series, attrs)`` of the current state (every rank).
+    The seconds are measured on rank 0 and its decision is broadcast (every 10 steps), so all ranks
+    write together. Keeps the newest ``keep`` files in ``directory`` (``step_<k>.h5``).
+    """
+    every = 1
+
+    def __init__(self, payload, directory, every_steps=0, every_seconds=0.0, keep=3, mode="auto",
+                 start_step=0):
+        self.payload, self.directory = payload, directory
+        self.every_steps, self.every_seconds = int(every_steps), float(every_seconds)
+        self.keep, self.mode = int(keep), mode
+        self.last_time = time.monotonic()
+        self.last_step = int(start_step)
+        self.written = []
+
+    def __call__(self, sim):
+        due = self.every_steps > 0 and sim.step_count % self.every_steps == 0
+        if not due and self.every_seconds > 0 and sim.step_count % 10 == 0:
+            due = sim.comm.bcast(time.monotonic() - self.last_time >= self.every_seconds)
+        if due:
+            self.write(sim)
+
+    def write(self, sim):
+        """Write a checkpoint of the current step now (collective), unless one exists already."""
+        if self.written and self.last_step == sim.step_count:
+            return
+        sim.check_stability()     # never write (and keep) the state of a run that blew up
+        comm = sim.comm
+        if comm.is_root:
+            os.makedirs(self.directory, exist_ok=True)
+        comm.barrier()
+        path = os.path.join(self.directory, checkpoint.checkpoint_name(sim.step_count))
+        groups, series, attrs = self.payload()
+        checkpoint.write_checkpoint(path, comm, groups, series, attrs, self.mode)
+        self.written = [p for p in self.written if p != path] + [path]
+        if comm.is_root:
+            checkpoint.prune(self.written, self.keep)
+        self.written = self.written[-self.keep:]
+        self.last_time = time.monotonic()
+        self.last_step = sim.step_count
