@@ -1,0 +1,162 @@
+"""Planar walls for any ``Simulation``: static or moving at constant velocity.
+
+``Walls`` is a set of infinite planes sharing one element-wall law (``pardem.physics.walls.Params``,
+linear or Hertz, optional friction and restitution). It has the interface ``Simulation`` uses for
+``sim.plates`` (``planes(time)``, ``move_to(time)``, ``law``, ``wall_force``, ``force_local``), so the
+time loop and the compiled wall kernel (``pardem.physics.walls.compute``) are the same as for the
+compression test's plates (``pardem.engine.state.Plates``). A Simulation holds one wall set.
+
+A wall is given by a point ``p`` on it and its unit normal ``n`` pointing **into** the domain (towards
+the elements): the plane is ``{x : n . x = n . p}``. An element of radius R touches it when its centre
+is closer than R to the plane. A wall may translate at a constant velocity ``V`` [m/s]: its plane at
+time t is ``n . x = n . p + n . V (t - t_add)`` (``t_add`` = the simulation time when it was added); the
+tangential part of ``V`` moves the surface in its own plane (a conveyor: it drags the elements through
+friction). Walls do not rotate.
+
+``add_walls(sim, normals, points, ...)`` builds the set, gives the elements their wall history
+(``elements.wall_h``, [n_rows, n_walls, 3] with friction, [n_rows, 0, 3] without; it migrates with the
+elements between ranks), attaches it as ``sim.plates`` and checks ``sim.dt`` against the critical time
+step with the walls' stiffness (``pardem.engine.builders.critical_time_step``).
+
+After each step, ``walls.forces(sim.comm)`` [n_walls, 3] [N] is the total force of the elements
+**on** each wall (collective); ``walls.normal_forces(comm)`` [n_walls] its compressive part
+``-F . n`` (positive when the elements push the wall).
+"""
+import math
+
+import numpy as np
+
+from pardem.physics import walls as wall_kernels
+
+WALL_OVERLAP_BOUND = 0.05   # Hertz walls: the critical time step holds up to this overlap / R
+
+
+class Walls:
+    """Planar walls (see the module docstring).
+
+    normals [n, 3] : inward unit normals (normalised here; must be non-zero); points [n, 3] [m] : a
+    point on each wall; velocities [n, 3] [m/s] : constant translation velocities (default 0);
+    law : ``pardem.physics.walls.Params``; time0 [s] : the time at which the walls are at ``points``.
+    """
+
+    def __init__(self, normals, points, law, velocities=None, time0=0.0):
+        normals = np.array(normals, dtype=np.float64)
+        if normals.ndim == 1:
+            normals = normals.reshape(1, -1)
+        if normals.ndim != 2 or normals.shape[1] != 3 or normals.shape[0] < 1:
+            raise ValueError(f"normals must have shape (n_walls, 3) with n_walls >= 1, got {normals.shape}")
+        n = normals.shape[0]
+        length = np.linalg.norm(normals, axis=1)
+        if not np.all(np.isfinite(length)) or np.any(length <= 0.0):
+            raise ValueError(f"normals must be finite non-zero vectors (inward wall normals), got {normals.tolist()}")
+        normals /= length[:, None]
+        # exact axis-aligned normals let the kernel read one coordinate per row
+        normals[np.isclose(np.abs(normals), 1.0, rtol=0, atol=1e-15)] = np.sign(
+            normals[np.isclose(np.abs(normals), 1.0, rtol=0, atol=1e-15)])
+        points = np.array(points, dtype=np.float64).reshape(-1, 3) if np.size(points) else np.zeros((0, 3))
+        if points.shape != (n, 3) or not np.all(np.isfinite(points)):
+            raise ValueError(f"points must be finite with shape ({n}, 3) (one point per wall) [m], got "
+                             f"shape {np.shape(points)}")
+        vel = np.zeros((n, 3)) if velocities is None else np.array(velocities, dtype=np.float64)
+        if vel.shape == (3,):
+            vel = np.tile(vel, (n, 1))
+        if vel.shape != (n, 3) or not np.all(np.isfinite(vel)):
+            raise ValueError(f"velocities must be finite with shape (3,) or ({n}, 3) [m/s], got shape "
+                             f"{vel.shape}")
+        if not isinstance(law, wall_kernels.Params):
+            raise ValueError(f"law must be a pardem.physics.walls.Params, got {type(law).__name__}")
+        self.law = law
+        self.normals = np.ascontiguousarray(normals)
+        self.offsets0 = np.einsum("wd,wd->w", normals, points)
+        self.velocities = np.ascontiguousarray(vel)
+        self.time0 = float(time0)
+        self.offsets = self.offsets0.copy()
+        self.wall_force = np.zeros((n, 3))
+        # Simulation stores the compressive force of the first two walls here (Plates' interface)
+        self.force_local = np.zeros(min(n, 2))
+
+    @property
+    def n_walls(self) -> int:
+        return self.normals.shape[0]
+
+    def offsets_at(self, time):
+        """Plane offsets [n_walls] [m] at ``time`` [s] (``n . x = offset``)."""
+        return self.offsets0 + np.einsum("wd,wd->w", self.normals, self.velocities) * (time - self.time0)
+
+    def move_to(self, time):
+        self.offsets[:] = self.offsets_at(time)
+
+    def planes(self, time):
+        """``(normals [n, 3], offsets [n], velocities [n, 3])`` for ``pardem.physics.walls``."""
+        return self.normals, self.offsets, self.velocities
+
+    def positions(self):
+        """A point on each wall now [n_walls, 3] [m] (the foot of the origin's normal)."""
+        return self.normals * self.offsets[:, None]
+
+    def forces(self, comm):
+        """Total force of the elements on each wall [n_walls, 3] [N] at the last step (collective)."""
+        return np.asarray(comm.sum(self.wall_force)).reshape(-1, 3)
+
+    def normal_forces(self, comm):
+        """Compressive normal force on each wall [n_walls] [N] (``-F . n``; collective)."""
+        return -np.einsum("wd,wd->w", self.forces(comm), self.normals)
+
+    def stiffness(self, radius):
+        """Normal stiffness [N/m] used for the critical time step of elements of ``radius`` [m]
+        (Hertz: the tangent stiffness at an overlap of ``WALL_OVERLAP_BOUND`` R)."""
+        if self.law.law == "hertz":
+            return max(wall_kernels.stiffness(self.law, radius, WALL_OVERLAP_BOUND * radius))
+        return max(wall_kernels.stiffness(self.law, radius, 0.0))
+
+
+def wall_law(law="linear", stiffness=None, young=None, poisson=None, restitution=1.0, friction=0.0,
+             wall_young=math.inf, **extra):
+    """``pardem.physics.walls.Params`` from keywords: linear law with ``stiffness`` [N/m], or Hertz
+    with the elements' ``young`` [Pa] and ``poisson`` against a wall of ``wall_young`` (rigid by
+    default)."""
+    if law == "linear":
+        return wall_kernels.Params(law="linear", kn=stiffness, restitution=restitution, friction=friction,
+                                   **extra)
+    if law == "hertz":
+        return wall_kernels.Params(law="hertz", young=young, poisson=poisson, wall_young=wall_young,
+                                   restitution=restitution, friction=friction, **extra)
+    raise ValueError(f"law must be 'linear' or 'hertz' (or a pardem.physics.walls.Params), got {law!r}")
+
+
+def add_walls(sim, normals, points, velocities=None, law="linear", check_dt=True, **law_keywords):
+    """Add a set of planar walls to ``sim`` (every rank, same arguments) and return it (``Walls``).
+
+    normals [n, 3] (inward), points [n, 3] [m], velocities [3] or [n, 3] [m/s] (default static);
+    law : a ``pardem.physics.walls.Params``, or ``"linear"`` / ``"hertz"`` with the keywords of
+    ``wall_law`` (``stiffness=``, ``young=``, ``poisson=``, ``restitution=``, ``friction=``).
+    ``check_dt``: raise ValueError when ``sim.dt`` is above the critical time step with the walls.
+    ValueError if ``sim`` already has walls or plates (one wall set per Simulation).
+    """
+    if sim.plates is not None:
+        raise ValueError("this Simulation already has walls (sim.plates): put every wall in one "
+                         "add_walls call (one wall set, one law)")
+    params = law if isinstance(law, wall_kernels.Params) else wall_law(law, **law_keywords)
+    if isinstance(law, wall_kernels.Params) and law_keywords:
+        raise ValueError(f"law is already a walls.Params: the keywords {sorted(law_keywords)} are not used")
+    w = Walls(normals, points, params, velocities, time0=sim.step_count * sim.dt)
+    if check_dt:
+        from pardem.engine.builders import critical_time_step
+        dt_c = critical_time_step(sim, walls=w)
+        if not sim.dt <= dt_c:
+            raise ValueError(f"sim.dt = {sim.dt:.6g} s is above the critical time step {dt_c:.6g} s with "
+                             f"these walls (stiffness {w.stiffness(_max_radius(sim)):.4g} N/m): lower the "
+                             f"wall stiffness or the time step (sim.set_dt) to at most {dt_c:.6g} s")
+    e = sim.elements
+    e.wall_h = wall_kernels.new_history(params, e.n_total, w.n_walls)
+    w.move_to(sim.step_count * sim.dt)
+    sim.plates = w
+    return w
+
+
+def _max_radius(sim):
+    e = sim.elements
+    return float(sim.comm.max(float(e.radius[:e.n_owned].max()) if e.n_owned else 0.0))
+
+
+__all__ = ["Walls", "add_walls", "wall_law"]

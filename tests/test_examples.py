@@ -1,0 +1,84 @@
+"""The examples/ scripts, shortened (--quick), as a user runs them; their physics is asserted here
+from their printed numbers, not only from their exit status."""
+import os
+import re
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
+
+
+def run(script, *args, ranks=None, timeout=900):
+    cmd = [sys.executable, os.path.join(ROOT, "examples", script), *args]
+    if ranks is not None:
+        cmd = [MPIEXEC, "-n", str(ranks)] + cmd
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, cwd=ROOT)
+    return res
+
+
+def number(pattern, text):
+    m = re.search(pattern, text)
+    assert m, f"{pattern!r} not in the output:\n{text}"
+    return float(m.group(1))
+
+
+FLOAT = r"([-+]?\d+\.?\d*(?:e[-+]?\d+)?)"
+
+
+def cantilever_error(out):
+    return number(r"relative error " + FLOAT, out)
+
+
+def test_cantilever_matches_euler_bernoulli():
+    res = run("cantilever.py", "--quick")
+    assert res.returncode == 0, res.stdout + res.stderr
+    # the discrete chain is an exact Euler-Bernoulli frame: the static tip deflection agrees to
+    # the equilibrium residual (the example runs until it changes < 1e-8 per chunk); 1e-6 as the
+    # example's own tolerance, derived in its docstring
+    assert abs(cantilever_error(res.stdout)) < 1e-6
+    assert number(r"clamp reaction " + FLOAT, res.stdout) == pytest.approx(1e-3, rel=1e-6)   # = the load
+    assert "PASS" in res.stdout
+
+
+def test_drop_rebounds_with_the_wall_restitution():
+    res = run("drop.py", "--quick", "--restitution", "0.5")
+    assert res.returncode == 0, res.stdout + res.stderr
+    ratio = number(r"rebound ratio " + FLOAT, res.stdout)
+    tol = number(r"tolerance " + FLOAT, res.stdout)
+    # the example's bound: gravity during the contact 2 g / (omega v) + discretisation omega dt / 2
+    assert abs(ratio - 0.5) <= tol
+    assert tol < 0.03          # the bound itself stays meaningful (omega dt = 0.05 in --quick)
+    # the impact speed is the free-fall speed (Verlet is exact under constant gravity), to the
+    # last step before the contact: g dt ~ 5e-5 m/s
+    v_in = number(r"impact speed " + FLOAT, res.stdout)
+    v_ff = number(r"free fall " + FLOAT, res.stdout)
+    assert v_in == pytest.approx(v_ff, abs=1e-4)
+
+
+def test_custom_compression_gives_the_lattice_modulus():
+    res = run("custom_compression.py", "--quick")
+    assert res.returncode == 0, res.stdout + res.stderr
+    # 1 %: the compress driver's own tolerance on this modulus (see the example's docstring)
+    assert abs(number(r"relative error " + FLOAT, res.stdout)) < 0.01
+    # the thermo log ran: 4 lines of 7 columns after a header
+    lines = [ln for ln in res.stdout.splitlines() if re.match(r"\s+\d+\s+\d\.\d+e", ln)]
+    assert len(lines) == 4 and all(len(ln.split()) == 7 for ln in lines)
+
+
+@pytest.mark.mpi
+@pytest.mark.skipif(MPIEXEC is None, reason="no mpiexec")
+def test_cantilever_gives_the_same_answer_on_two_ranks():
+    one = run("cantilever.py", "--quick")
+    two = run("cantilever.py", "--quick", ranks=2)
+    assert two.returncode == 0, two.stdout + two.stderr
+    assert "2 rank(s)" in two.stdout
+    d1 = number(r"tip deflection " + FLOAT, one.stdout)
+    d2 = number(r"tip deflection " + FLOAT, two.stdout)
+    # same per-element arithmetic on both decompositions (ghosts are exact copies, bonds computed
+    # in the same orientation); only summation order may differ: 1e-12 relative over the run
+    assert d2 == pytest.approx(d1, rel=1e-12)
+    assert abs(cantilever_error(two.stdout)) < 1e-6
