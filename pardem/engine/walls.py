@@ -51,9 +51,11 @@ class Walls:
             raise ValueError(f"normals must be finite non-zero vectors (inward wall normals), got {normals.tolist()}")
         normals /= length[:, None]
         # exact axis-aligned normals let the kernel read one coordinate per row
-        normals[np.isclose(np.abs(normals), 1.0, rtol=0, atol=1e-15)] = np.sign(
-            normals[np.isclose(np.abs(normals), 1.0, rtol=0, atol=1e-15)])
-        points = np.array(points, dtype=np.float64).reshape(-1, 3) if np.size(points) else np.zeros((0, 3))
+        aligned = np.isclose(np.abs(normals), 1.0, rtol=0, atol=1e-15)
+        normals[aligned] = np.sign(normals[aligned])
+        points = np.array(points, dtype=np.float64)
+        if points.shape == (3,) and n == 1:
+            points = points.reshape(1, 3)
         if points.shape != (n, 3) or not np.all(np.isfinite(points)):
             raise ValueError(f"points must be finite with shape ({n}, 3) (one point per wall) [m], got "
                              f"shape {np.shape(points)}")
