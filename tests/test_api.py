@@ -95,6 +95,30 @@ def test_frame_picks_the_material_axis_of_each_bond(comm):
     assert turned.bonds.young[0] == 2e8
 
 
+def test_granular_system_head_on_collision_has_the_contact_restitution(comm):
+    k, e_req, v = 1e5, 0.6, 0.1
+    pos = [[0.0, 0.0, 0.0], [2 * R + 0.002, 0.0, 0.0]]
+    sim = pardem.granular_system(comm, pos, R, RHO, "linear",
+                                 {"kn": k, "kt": k, "friction": 0.0, "restitution": e_req},
+                                 box_lo=[-0.2, -0.2, -0.2], box_length=[0.4, 0.4, 0.4], dt_fraction=0.02,
+                                 velocities=[[v, 0, 0], [-v, 0, 0]])
+    # the builder's dt is its fraction of the law's own critical step, which critical_time_step
+    # (used for bonded systems and walls) finds again from the simulation
+    assert sim.dt == pytest.approx(0.02 * sim.case.constants["dt_critical"], rel=1e-15)
+    assert pardem.critical_time_step(sim) == pytest.approx(sim.case.constants["dt_critical"], rel=1e-12)
+    m = RHO * 4 / 3 * np.pi * R**3
+    omega = np.sqrt(k / (0.5 * m))                    # the pair's relative motion, m* = m / 2
+    sim.run(int((0.002 / (2 * v) + 4.0 / omega) / sim.dt))
+    e = sim.elements
+    rel = e.v[e.gid == 1][0, 0] - e.v[e.gid == 0][0, 0]
+    # exact restitution of the clipped dashpot (damping_ratio), up to the first-order time
+    # discretisation bound omega dt / 2 (the same as for the walls, examples/drop.py)
+    assert rel / (2 * v) == pytest.approx(e_req, abs=0.5 * omega * sim.dt)
+    assert rel > 0.0
+    # momentum is conserved exactly by the pair forces (equal and opposite), to rounding
+    assert abs(e.v[:, 0].sum()) < 1e-15
+
+
 # -- walls ----------------------------------------------------------------------------------
 
 def test_sphere_resting_on_a_wall_compresses_it_by_mg_over_k(comm):
@@ -229,3 +253,12 @@ def test_log_counts_each_bond_once_on_two_ranks(tmp_path):
     # energy would count it twice (about 1/11 of the total here). Same state on both runs to
     # rounding: equal to the 10 printed digits
     assert np.allclose(data[2], data[1], rtol=1e-9, atol=0)
+
+
+def test_log_prints_on_stdout_by_default(comm, capsys):
+    sim = sphere(comm, z=1.0, v=(0.0, 0.0, 1.0), dt=1e-4)
+    sim.run(4, operations=[pardem.Log(every=2, columns={"vz": lambda s: s.elements.v[0, 2]})])
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split() == ["step", "time", "kinetic", "bond", "contact", "wall", "total", "vz"]
+    assert [ln.split()[0] for ln in lines[1:]] == ["2", "4"]
+    assert float(lines[-1].split()[-1]) == 1.0

@@ -74,12 +74,12 @@ class Log:
     directory : where ``log.txt`` goes (None: no file); every : period in steps; columns : dict
     ``{name: function(sim) -> float}`` of user columns, called on **every** rank (so a function may
     use collectives such as ``sim.comm.sum``; rank 0's value is written); stream : where rank 0
-    prints (default ``sys.stdout``; None: no printing); mode : "append" (default), "new" or
+    prints (default ``"stdout"``: the ``sys.stdout`` of the moment; None: no printing); mode : "append" (default), "new" or
     "overwrite" for an existing log.txt; precision : significant digits of the values.
     ``rows`` keeps every line written by this object (rank 0; list of tuples), ``names`` the columns.
     """
 
-    def __init__(self, directory=None, every=100, columns=None, stream=sys.stdout, mode="append",
+    def __init__(self, directory=None, every=100, columns=None, stream="stdout", mode="append",
                  precision=10):
         if not (isinstance(every, (int, np.integer)) and every >= 1):
             raise ValueError(f"every must be an integer >= 1 (steps), got {every!r}")
@@ -103,6 +103,11 @@ class Log:
         self._file = None
         self._opened = False
         self._last_step = None
+
+    @property
+    def out(self):
+        """The stream rank 0 prints to (None: none)."""
+        return sys.stdout if isinstance(self.stream, str) and self.stream == "stdout" else self.stream
 
     @property
     def path(self):
@@ -130,9 +135,9 @@ class Log:
         err = sim.comm.bcast(err)
         if err is not None:
             raise FileExistsError(err) if "refusing" in err else OSError(err)
-        if sim.comm.is_root and self.stream is not None:
-            self.stream.write(self._format_header() + "\n")
-            self.stream.flush()
+        if sim.comm.is_root and self.out is not None:
+            self.out.write(self._format_header() + "\n")
+            self.out.flush()
 
     def _format_header(self):
         w = self.precision + 7
@@ -164,9 +169,9 @@ class Log:
         if self._file is not None:
             self._file.write(line + "\n")
             self._file.flush()
-        if self.stream is not None:
-            self.stream.write(line + "\n")
-            self.stream.flush()
+        if self.out is not None:
+            self.out.write(line + "\n")
+            self.out.flush()
 
     def close(self):
         if self._file is not None:
