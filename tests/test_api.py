@@ -167,7 +167,7 @@ def test_add_walls_checks_the_time_step_and_its_inputs(comm):
         pardem.add_walls(sim, [[0, 0, 0]], [[0, 0, 0]], stiffness=1.0)
     with pytest.raises(ValueError, match=r"points must be finite with shape \(1, 3\)"):
         pardem.add_walls(sim, [[0, 0, 1]], [[0, 0]], stiffness=1.0)
-    with pytest.raises(ValueError, match="kn must be a positive stiffness"):
+    with pytest.raises(ValueError, match="stiffness must be a positive number"):
         pardem.add_walls(sim, [[0, 0, 1]], [[0, 0, 0]])
     w = pardem.add_walls(sim, [[0, 0, 2]], [[0, 0, 0]], stiffness=0.99 * k_max)
     assert np.array_equal(w.normals, [[0.0, 0.0, 1.0]])     # normalised

@@ -290,3 +290,22 @@ def test_fixes_follow_an_element_migrating_to_another_rank(tmp_path):
     # moving exactly dt V per step (asserted in the script, bitwise)
     assert words[:3] == ["owners", "0", "1"], res.stdout
     assert int(words[4]) > 100
+
+
+def test_fixes_added_between_runs_act_from_the_next_step(comm):
+    sim = free_sphere(comm, v0=(0.5, 0.0, 0.0), dt=1e-4)
+    sim.run(10)
+    V = np.array([0.0, 0.0, 0.25])
+    add(sim, pardem.PrescribedVelocity([0], V))
+    x = sim.elements.x[0].copy()
+    sim.run(7)
+    for _ in range(7):
+        x = x + sim.dt * V                     # exactly as if driven from the start
+    assert np.array_equal(sim.elements.x[0], x)
+    # a load added under an existing constraint does not break it
+    add(sim, pardem.ExternalForce([0], (1.0, 1.0, 1.0)))
+    assert [type(f).__name__ for f in sim.fixes] == ["ExternalForce", "PrescribedVelocity"]
+    sim.run(3)
+    for _ in range(3):
+        x = x + sim.dt * V
+    assert np.array_equal(sim.elements.x[0], x)

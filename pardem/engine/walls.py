@@ -118,6 +118,8 @@ def wall_law(law="linear", stiffness=None, young=None, poisson=None, restitution
     with the elements' ``young`` [Pa] and ``poisson`` against a wall of ``wall_young`` (rigid by
     default)."""
     if law == "linear":
+        if stiffness is None or not (np.isscalar(stiffness) and np.isfinite(stiffness) and stiffness > 0):
+            raise ValueError(f"stiffness must be a positive number [N/m] for a linear wall law, got {stiffness!r}")
         return wall_kernels.Params(law="linear", kn=stiffness, restitution=restitution, friction=friction,
                                    **extra)
     if law == "hertz":
