@@ -312,3 +312,167 @@ def test_servo_stiffness_is_the_affine_pressure_response():
     p_after = -np.trace(sim.global_stress()) / 3.0
     assert S > 10.0 * p_before
     assert -(p_after - p_before) / de == pytest.approx(S, rel=0.01)
+
+
+# ---------------------------------------------------------------------------------------------
+# the driver's output contract: checkpoints, --restart, --steps, series, ParaView, plots
+
+TINY = ["--config", SMALL, "--set", "sample.n=60", "--set", 'preparation.relaxation="fire"',
+        "--pressures", "1e6", "--quiet"]
+
+
+def run_iso(ranks, out, *extra, expect=0):
+    cmd = [MPIEXEC, "-n", str(ranks), sys.executable, "-m", "pardem.drivers.isotropic", *TINY,
+           "--out", str(out), *[str(a) for a in extra]]
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert p.returncode == expect, p.stderr[-3000:]
+    return p
+
+
+def protocol_state(path):
+    import h5py
+    with h5py.File(path, "r") as f:
+        return json.loads(f.attrs["protocol"]), int(f.attrs["step"])
+
+
+def comparable(path):
+    """isotropic.json without what may differ between an uninterrupted and a restarted run (wall
+    times, the checkpoint paths, the restart's name)."""
+    d = json.loads(path.read_text())
+    for k in ("wall_seconds", "restarted_from", "checkpoints"):
+        d.pop(k)
+    d["deck"].pop("checkpoint")               # the restarts may set other checkpoint and
+    d["deck"]["output"].pop("vtk_every")      # ParaView periods
+    for det in d["details"]:
+        det.pop("seconds")
+        det.pop("moduli_seconds", None)
+    return d
+
+
+@pytest.fixture(scope="module")
+def restart_runs(tmp_path_factory):
+    """A 60-sphere FIRE run on 2 ranks with a checkpoint every 3001 steps (mid-interval: the
+    checks are every 200 steps), ParaView every 5000 steps; restarts from a checkpoint of the
+    preparation and of the moduli; a --steps stop and its restart."""
+    d = tmp_path_factory.mktemp("iso_restart")
+    run_iso(2, d / "full", "--set", "checkpoint.every_steps=3001", "--set", "checkpoint.keep=20",
+            "--set", "output.vtk_every=5000")
+    cks = sorted((d / "full" / "checkpoints").glob("checkpoint-*.h5"))
+    stages = {p: protocol_state(p)[0]["stage"] for p in cks}
+    prep = [p for p in cks if stages[p] == "prepare"][1]
+    mod = [p for p in cks if stages[p] in ("K", "mu")][-1]
+    run_iso(2, d / "from_prep", "--restart", prep, "--set", "output.vtk_every=5000")
+    run_iso(2, d / "from_moduli", "--restart", mod)
+    stop_at = protocol_state(prep)[1] + 2500
+    stopped = run_iso(2, d / "stopped", "--restart", prep, "--steps", stop_at)
+    last = sorted((d / "stopped" / "checkpoints").glob("checkpoint-*.h5"))[-1]
+    run_iso(2, d / "continued", "--restart", last)
+    run_iso(1, d / "one_rank", "--restart", mod)
+    return d, {"prep": prep, "moduli": mod, "stop_at": stop_at, "stopped": stopped, "last": last}
+
+
+@pytest.mark.mpi
+def test_restart_is_bit_for_bit(restart_runs):
+    """Restarted on the same 2 ranks from the preparation (FIRE mid-way: its adaptive step,
+    counters and the clock are in the checkpoint), from the moduli's relaxations, and after a
+    --steps stop: the series and every number of isotropic.json equal the uninterrupted run's."""
+    d, info = restart_runs
+    full = comparable(d / "full" / "isotropic.json")
+    assert full["finished"] and full["details"][0]["converged"]
+    for name in ("from_prep", "from_moduli", "continued"):
+        assert (d / name / "isotropic.csv").read_bytes() == (d / "full" / "isotropic.csv").read_bytes(), name
+        assert comparable(d / name / "isotropic.json") == full, name
+    stopped = json.loads((d / "stopped" / "isotropic.json").read_text())
+    assert not stopped["finished"] and stopped["rows"] == []
+    # --steps stops at the first equilibrium check (every 200 steps) at or after N
+    assert info["stop_at"] <= stopped["steps"] < info["stop_at"] + 200
+    assert protocol_state(info["last"])[1] == stopped["steps"]
+    assert "--restart" in info["stopped"].stdout
+
+
+@pytest.mark.mpi
+def test_restart_on_another_rank_count(restart_runs):
+    """From the 2-rank checkpoint of the moduli on 1 rank: the rows measured before it are the
+    checkpoint's (equal), the moduli still to measure agree to 1e-6 (the summation order changes
+    with the rank count, rounding 1e-16, which the relaxation amplifies; measured 9e-11)."""
+    d, _ = restart_runs
+    a, b = comparable(d / "full" / "isotropic.json"), comparable(d / "one_rank" / "isotropic.json")
+    assert b["n_ranks"] == 1 and b["finished"]
+    for k in ("p0", "p", "Z", "Z_no_rattlers", "solid_fraction"):
+        assert b["rows"][0][k] == a["rows"][0][k]
+    for k in ("K_affine", "K_relaxed", "mu_affine", "mu_relaxed"):
+        assert b["rows"][0][k] == pytest.approx(a["rows"][0][k], rel=1e-6), k
+
+
+@pytest.mark.mpi
+def test_output_files(restart_runs):
+    """The series (CSV = HDF5, units), the plots, ParaView and the summary's run keys."""
+    from pardem.io.series import read_series
+    from pardem.io.series_h5 import read_series_h5
+    import h5py
+    d, _ = restart_runs
+    out = d / "full"
+    csv = read_series(out / "isotropic.csv", None)
+    h5 = read_series_h5(out / "isotropic.h5")
+    assert list(csv) == list(iso.SERIES_COLUMNS) == list(h5)
+    for k in iso.SERIES_COLUMNS:
+        np.testing.assert_array_equal(np.asarray(csv[k]), h5[k].astype(float))
+    with h5py.File(out / "isotropic.h5") as f:
+        assert [f[k].attrs["units"] for k in iso.SERIES_COLUMNS] == list(iso.SERIES_UNITS)
+        assert f["step"].dtype == np.int64
+    steps = np.asarray(csv["step"])
+    assert np.all(np.diff(steps) > 0) and set(np.asarray(csv["stage"])) == {0, 1, 2}
+    data = json.loads((out / "isotropic.json").read_text())
+    prep = np.asarray(csv["stage"]) == 0
+    assert prep.sum() == data["details"][0]["steps"] // 200          # one row per check
+    assert csv["pressure"][int(np.nonzero(prep)[0][-1])] == pytest.approx(data["rows"][0]["p"], rel=1e-12)
+    assert data["steps"] == steps[-1] and data["driver"] == "isotropic" and data["restarted_from"] is None
+    assert len(data["checkpoints"]) >= 5
+    for png in ("isotropic.png", "force_distribution.png"):
+        assert (out / png).stat().st_size > 1000
+    pvd = (out / "paraview" / "pardem.pvd").read_text()
+    assert pvd.count("<DataSet") == 1 + data["steps"] // 5000          # the initial state and every 5000
+    # the restart continued the ParaView series of its own directory from the checkpoint's step
+    assert (d / "from_prep" / "paraview" / "pardem.pvd").exists()
+
+
+def test_restart_refuses_bad_checkpoints(restart_runs, tmp_path):
+    """One line and exit 2: an incomplete file, a deck that changes the physics, --steps before the
+    checkpoint, and a checkpoint of another driver."""
+    import h5py
+    d, info = restart_runs
+    bad = tmp_path / "incomplete.h5"
+    shutil.copy(info["moduli"], bad)
+    with h5py.File(bad, "r+") as f:
+        f.attrs["complete"] = 0
+    cases = [(["--restart", bad], "incomplete"),
+             (["--restart", info["moduli"], "--set", "material.friction=0.5"], "material.friction"),
+             (["--restart", info["moduli"], "--pressures", "1e6,2e6"], "preparation.pressures"),
+             (["--restart", info["moduli"], "--steps", "10"], "--steps")]
+    for extra, word in cases:
+        p = subprocess.run([sys.executable, "-m", "pardem.drivers.isotropic", "--out", str(tmp_path / "x"),
+                            "--quiet", *[str(a) for a in extra]], capture_output=True, text=True,
+                           timeout=120, cwd=ROOT)
+        assert p.returncode == 2 and word in p.stderr, (extra, p.stderr)
+        assert len(p.stderr.strip().splitlines()) == 1, p.stderr
+    # a triaxial checkpoint (the granular case of another protocol)
+    from pardem.drivers import triaxial as tx_driver  # noqa: F401
+    tx = tmp_path / "tx"
+    q = subprocess.run([sys.executable, "-m", "pardem.drivers.triaxial", "--config",
+                        os.path.join(ROOT, "drivers", "triaxial_short.toml"), "--steps", "200",
+                        "--out", str(tx), "--quiet"], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert q.returncode == 0, q.stderr
+    ck = sorted((tx / "checkpoints").glob("*.h5"))[-1]
+    p = subprocess.run([sys.executable, "-m", "pardem.drivers.isotropic", "--restart", str(ck), "--out",
+                        str(tmp_path / "y")], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert p.returncode == 2 and "not a checkpoint of the isotropic driver" in p.stderr, p.stderr
+
+
+def test_deck_conventions():
+    """skin in metres with "auto" = 0.2 x the smallest radius (today's value), progress_seconds in
+    [run], and the decks say so."""
+    for name in ("isotropic_small.toml", "isotropic_glass.toml"):
+        deck = load_deck(iso.SCHEMA, os.path.join(ROOT, "drivers", name), [])
+        assert deck["run"]["skin"] == "auto" and "progress_seconds" in deck["run"]
+        assert iso.skin(deck, np.array(deck["sample"]["radii"])) == 0.2 * 0.095e-3
+    assert iso.skin(small_deck("run.skin=3e-5"), np.array([1e-4])) == 3e-5

@@ -196,3 +196,31 @@ def test_plot_help(capsys):
         plot.main(["--help"])
     assert exc.value.code == 0
     assert "DIR" in capsys.readouterr().out
+
+
+def test_other_columns_round_trip(tmp_path):
+    """A driver's own columns (dict rows, its units and int columns): CSV and HDF5 agree bit for
+    bit, the units and the column order are the given ones, and compress's defaults are unchanged."""
+    from pardem.io.series import dict_row
+    cols, units = ("step", "pressure", "count"), ("1", "Pa", "1")
+    rng = np.random.default_rng(4)
+    rows = [{"step": 3 * k, "pressure": float(rng.normal() * 10.0 ** rng.integers(-9, 9)),
+             "count": int(rng.integers(0, 10**6))} for k in range(29)]
+    csv = SeriesCSV(tmp_path / "s.csv", cols, dict_row(cols))
+    h5 = SeriesH5(tmp_path / "s.h5", rows[:5], cols, units, dict_row(cols), "test series",
+                  int_columns={"step", "count"})
+    for r in rows:
+        csv.append(r)
+    for r in rows[5:]:
+        h5.append(r)
+    csv.close()
+    h5.close()
+    a, b = read_series(tmp_path / "s.csv", None), read_series_h5(tmp_path / "s.h5")
+    assert list(a) == list(b) == list(cols)
+    for k in cols:
+        np.testing.assert_array_equal(np.asarray(a[k]), b[k].astype(float))
+    with h5py.File(tmp_path / "s.h5") as f:
+        assert [f[k].attrs["units"] for k in cols] == list(units)
+        assert f["count"].dtype == np.int64 and f["pressure"].dtype == np.float64
+        assert f.attrs["description"] == "test series"
+    assert SeriesCSV.__init__.__defaults__[0] == SERIES_COLUMNS

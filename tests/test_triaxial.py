@@ -40,9 +40,9 @@ def mpirun(n, *args, timeout=600):
 def prepared(tmp_path_factory):
     """Checkpoint of a cemented 216-sphere packing at pc under the triaxial servo (50 1/s)."""
     d = tmp_path_factory.mktemp("tx")
-    # a skin of 0.05 R, just above the cement's largest stretch sqrt(2 E_max / Sn) = 0.042 R, so
-    # that the lists are rebuilt during the loading
-    deck = load_deck(triaxial.SCHEMA, SHORT, ["loading.strain_rate=50.0", "run.skin=0.05"])
+    # a skin of 0.05 R = 2.5e-5 m, just above the cement's largest stretch sqrt(2 E_max / Sn) =
+    # 0.042 R, so that the lists are rebuilt during the loading
+    deck = load_deck(triaxial.SCHEMA, SHORT, ["loading.strain_rate=50.0", "run.skin=2.5e-5"])
     case = triaxial.build(Communicator(), deck)
     prep = triaxial.prepare(case, deck)
     assert prep["converged"] and abs(prep["pressure"] / PC - 1) < 0.01
@@ -176,3 +176,136 @@ def test_default_deck_file_is_the_built_in_default():
     assert k["threshold_mean"] - k["threshold_half_width"] == pytest.approx(5e-6)
     assert k["threshold_mean"] + k["threshold_half_width"] == pytest.approx(4.5e-5)
     triaxial.check_deck(deck)
+
+
+# ---------------------------------------------------------------------------------------------
+# the driver's output contract: checkpoints, --restart, --steps, series, ParaView
+
+# a quick run: a preparation cut at 3000 steps (not converged: reported, and deterministic), then
+# 0.2 % of axial strain (1700-odd steps)
+QUICK = ["--config", SHORT, "--set", "preparation.max_steps=3000", "--set", "loading.strain=0.002",
+         "--quiet"]
+
+
+def run_tx(ranks, out, *extra):
+    return mpirun(ranks, "-m", "pardem.drivers.triaxial", *QUICK, "--out", out, *extra)
+
+
+def comparable(path):
+    d = json.loads(path.read_text())
+    for k in ("wall_seconds", "preparation_seconds", "restarted_from", "checkpoints"):
+        d.pop(k)
+    d["deck"].pop("checkpoint")               # the restarts may set other checkpoint and
+    d["deck"]["output"].pop("vtk_every")      # ParaView periods
+    return d
+
+
+@pytest.fixture(scope="module")
+def restart_runs(tmp_path_factory):
+    """The quick run on 2 ranks with a checkpoint every 1000 steps and ParaView every 1000;
+    restarts from the preparation and from the loading; a --steps stop in the loading and its
+    restart; a restart on 1 rank."""
+    d = tmp_path_factory.mktemp("tx_restart")
+    run_tx(2, d / "full", "--set", "checkpoint.every_steps=1000", "--set", "checkpoint.keep=10",
+           "--set", "output.vtk_every=1000")
+    ck = d / "full" / "checkpoints"
+    run_tx(2, d / "from_prep", "--restart", ck / "checkpoint-0000002000.h5")
+    run_tx(2, d / "from_load", "--restart", ck / "checkpoint-0000004000.h5")
+    stopped = run_tx(2, d / "stopped", "--restart", ck / "checkpoint-0000002000.h5", "--steps", 3777)
+    run_tx(2, d / "continued", "--restart", d / "stopped" / "checkpoints" / "checkpoint-0000003777.h5")
+    run_tx(1, d / "one_rank", "--restart", ck / "checkpoint-0000004000.h5")
+    # a run that crashes on rank 1 at step 4321 (PARDEM_FAULT), continued from its last checkpoint
+    cmd = [MPIEXEC, "-n", "2", sys.executable, "-m", "pardem.drivers.triaxial", *QUICK, "--out",
+           str(d / "crashed"), "--set", "checkpoint.every_steps=1000"]
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=600, cwd=ROOT,
+                       env={**os.environ, "PARDEM_FAULT": "1:4321"})
+    assert p.returncode != 0 and "fault injected" in p.stderr, p.stderr[-2000:]
+    last = sorted((d / "crashed" / "checkpoints").glob("checkpoint-*.h5"))[-1]
+    assert last.name == "checkpoint-0000004000.h5"
+    run_tx(2, d / "crashed", "--restart", last)
+    return d, stopped
+
+
+@pytest.mark.mpi
+def test_driver_restart_is_bit_for_bit(restart_runs):
+    """From the preparation, from the loading, after a --steps stop (at step 3777, exactly) and
+    after a crash (into the crashed run's directory): the series and every number of
+    triaxial.json equal the uninterrupted run's."""
+    d, stopped = restart_runs
+    full = comparable(d / "full" / "triaxial.json")
+    assert full["finished"] and not full["preparation"]["converged"] and full["preparation"]["steps"] == 3000
+    for name in ("from_prep", "from_load", "continued", "crashed"):
+        assert (d / name / "triaxial.csv").read_bytes() == (d / "full" / "triaxial.csv").read_bytes(), name
+        assert comparable(d / name / "triaxial.json") == full, name
+    s = json.loads((d / "stopped" / "triaxial.json").read_text())
+    assert not s["finished"] and s["steps"] == 3777
+    assert "--restart" in stopped.stdout
+
+
+@pytest.mark.mpi
+def test_driver_restart_on_another_rank_count(restart_runs):
+    """From the 2-rank checkpoint at step 4000 on 1 rank: the rows before it are the checkpoint's
+    (equal), the rest agrees to 1e-6 of pc (another rank count may sum the contact forces in
+    another order, rounding 1e-16 that 721 steps of contacts amplify; measured: identical here)."""
+    d, _ = restart_runs
+    a = driver.read_series(d / "full" / "triaxial.csv")
+    b = driver.read_series(d / "one_rank" / "triaxial.csv")
+    assert a["step"] == b["step"]
+    before = [k for k, st in enumerate(a["step"]) if st <= 4000]
+    for k in triaxial.COLUMNS:
+        assert [a[k][i] for i in before] == [b[k][i] for i in before], k
+    for k in ("q", "p", "sigma_axial", "sigma_lateral_1", "sigma_lateral_2"):
+        np.testing.assert_allclose(b[k], a[k], rtol=0, atol=1e-6 * PC, err_msg=k)
+    assert b["cements_intact"] == a["cements_intact"]
+    assert json.loads((d / "one_rank" / "triaxial.json").read_text())["n_ranks"] == 1
+
+
+@pytest.mark.mpi
+def test_driver_output_files(restart_runs):
+    """The series HDF5 equals the CSV, with units; ParaView snapshots every 1000 steps."""
+    from pardem.io.series_h5 import read_series_h5
+    import h5py
+    d, _ = restart_runs
+    out = d / "full"
+    csv = driver.read_series(out / "triaxial.csv")
+    h5 = read_series_h5(out / "triaxial.h5")
+    assert list(h5) == list(triaxial.COLUMNS)
+    for k in triaxial.COLUMNS:
+        np.testing.assert_array_equal(np.asarray(csv[k]), h5[k].astype(float))
+    with h5py.File(out / "triaxial.h5") as f:
+        assert [f[k].attrs["units"] for k in triaxial.COLUMNS] == list(triaxial.UNITS)
+        assert f["cements_intact"].dtype == np.int64
+    summary = json.loads((out / "triaxial.json").read_text())
+    assert summary["steps"] == csv["step"][-1] and summary["driver"] == "triaxial"
+    assert (out / "triaxial.png").stat().st_size > 1000
+    pvd = (out / "paraview" / "pardem.pvd").read_text()
+    assert pvd.count("<DataSet") == 1 + summary["steps"] // 1000
+
+
+def test_driver_refuses_bad_checkpoints(restart_runs, tmp_path):
+    """One line and exit 2: an incomplete file, a deck that changes the physics, --steps before the
+    checkpoint."""
+    import h5py
+    d, _ = restart_runs
+    ck = d / "full" / "checkpoints" / "checkpoint-0000004000.h5"
+    bad = tmp_path / "incomplete.h5"
+    shutil.copy(ck, bad)
+    with h5py.File(bad, "r+") as f:
+        f.attrs["complete"] = 0
+    for extra, word in ((["--restart", bad], "incomplete"),
+                        (["--restart", ck, "--set", "cement.seed=12"], "cement.seed"),
+                        (["--restart", ck, "--set", "run.skin=6e-5"], "run.skin"),
+                        (["--restart", ck, "--steps", "100"], "--steps")):
+        p = subprocess.run([sys.executable, "-m", "pardem.drivers.triaxial", "--out", str(tmp_path / "x"),
+                            "--quiet", *[str(a) for a in extra]], capture_output=True, text=True,
+                           timeout=120, cwd=ROOT)
+        assert p.returncode == 2 and word in p.stderr, (extra, p.stderr)
+        assert len(p.stderr.strip().splitlines()) == 1, p.stderr
+
+
+def test_deck_conventions():
+    """skin in metres ("auto" = 0.1 R, today's value), progress_seconds in [run]."""
+    deck = load_deck(triaxial.SCHEMA, SHORT, [])
+    assert deck["run"]["skin"] == "auto" and triaxial.skin(deck) == 0.1 * 0.5e-3
+    assert deck["run"]["progress_seconds"] == 10.0
+    assert triaxial.skin(load_deck(triaxial.SCHEMA, SHORT, ["run.skin=7e-5"])) == 7e-5

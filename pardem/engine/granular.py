@@ -174,9 +174,43 @@ def checkpoint_payload(case):
              "rng_state": {"generator": None}, "plate_positions": np.zeros(0),
              "plate_velocities": np.zeros(0), "slab_axis": case.constants["slab_axis"],
              "slab_cut_s": slabs.cut_s if slabs is not None else np.zeros(0),
-             "slab_cut_g": slabs.cut_g if slabs is not None else np.zeros(0, dtype=np.int64)}
+             "slab_cut_g": slabs.cut_g if slabs is not None else np.zeros(0, dtype=np.int64),
+             "run_state": run_state(sim)}
     return {"elements": elements, "bonds": {k: getattr(bonds, k) for k in checkpoint.BOND_DATASETS},
             "contacts": contacts}, {}, attrs
+
+
+def run_state(sim):
+    """What a bit-for-bit restart needs beyond the arrays and constants (same on every rank):
+    the current step and its clock (an adaptive step changes them), the current global damping,
+    the last step's stress, and each rank's contact sums, contact energy and lost-cement count
+    (read between steps by the protocols' checks). Collective."""
+    c = sim.contacts
+    per_rank = sim.comm.allgather({"sums": [float(v) for v in c.sums], "energy": float(sim.contact_energy),
+                                   "lost": int(c.lost)})
+    return {"dt": float(sim.dt), "clock": [int(sim._clock[0]), float(sim._clock[1])],
+            "time": float(sim.time), "viscous_damping": float(sim.viscous_damping),
+            "stress": np.asarray(sim.stress, dtype=float).tolist(), "per_rank": per_rank}
+
+
+def _restore_run_state(sim, rs, same):
+    """Put back ``run_state`` (on another rank count, rank 0 takes the global sums)."""
+    sim.dt = float(rs["dt"])
+    sim._clock = (int(rs["clock"][0]), float(rs["clock"][1]))
+    sim.time = float(rs["time"])
+    sim.viscous_damping = float(rs["viscous_damping"])
+    sim.stress = np.asarray(rs["stress"], dtype=np.float64).reshape(3, 3)
+    per = rs["per_rank"]
+    c = sim.contacts
+    if same:
+        mine = per[sim.comm.rank]
+        c.sums[:] = mine["sums"]
+        sim.contact_energy = float(mine["energy"])
+        c.lost = int(mine["lost"])
+    elif sim.comm.is_root:
+        c.sums[:] = np.sum([q["sums"] for q in per], axis=0)
+        sim.contact_energy = float(sum(q["energy"] for q in per))
+        c.lost = int(sum(q["lost"] for q in per))
 
 
 def write(case, path, mode="auto"):
@@ -184,13 +218,18 @@ def write(case, path, mode="auto"):
     checkpoint.write_checkpoint(path, case.sim.comm, groups, series, attrs, mode=mode)
 
 
-def restore(comm, path):
-    """The granular case of checkpoint ``path`` on ``comm`` (any number of ranks)."""
+def restore(comm, path, slab_axis=None):
+    """The granular case of checkpoint ``path`` on ``comm`` (any number of ranks; ``slab_axis``
+    re-cuts the slabs along another axis). On the rank count and axis that wrote it the run
+    continues bit for bit (with the ``run_state`` of checkpoints that have one)."""
     import json
     meta = checkpoint.inspect(path)
     c = meta["constants"]
     cell_state = meta["cell"]
     cell = PeriodicCell.from_state(json.loads(cell_state) if isinstance(cell_state, str) else cell_state)
+    if slab_axis is not None and int(slab_axis) != int(c["slab_axis"]):
+        c["slab_axis"] = int(slab_axis)
+        meta["n_ranks"] = -1       # the stored slabs do not apply: re-cut as for another rank count
     axis = int(c["slab_axis"])
     same = int(meta["n_ranks"]) == comm.size
     names = list(ELEMENT_DATASETS)
@@ -259,4 +298,7 @@ def restore(comm, path):
                      viscous_damping=c["viscous_damping"])
     sim.step_count = int(meta["step"])
     sim.time = sim.step_count * sim.dt
+    rs = meta.get("run_state")
+    if rs is not None:
+        _restore_run_state(sim, json.loads(rs) if isinstance(rs, (str, bytes)) else rs, same)
     return GranularCase(sim=sim, constants=c)

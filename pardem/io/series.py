@@ -1,4 +1,9 @@
-"""Time series of the measured quantities as CSV (rank 0 writes; one row per sample)."""
+"""Time series of the measured quantities as CSV (rank 0 writes; one row per sample).
+
+The default columns are compress's (``SERIES_COLUMNS``, rows from ``Reducer.sample`` dicts); other
+drivers pass their own ``columns`` and ``row`` (e.g. ``dict_row(columns)`` for samples that are
+dicts keyed by column).
+"""
 import csv
 
 SERIES_COLUMNS = ("step", "time", "plate_displacement", "force_fixed", "force_moving",
@@ -15,25 +20,39 @@ def sample_row(s):
             s["bonds_broken"], s["bonds_broken_step"], s["bonds_yielded"])
 
 
-class SeriesCSV:
-    """CSV file with a header line; ``append`` writes and flushes one row (so a crash keeps rows)."""
+def dict_row(columns):
+    """``row`` function of samples that are dicts keyed by the column names."""
+    columns = tuple(columns)
+    return lambda s: [s[k] for k in columns]
 
-    def __init__(self, path):
+
+class SeriesCSV:
+    """CSV file with a header line; ``append`` writes and flushes one row (so a crash keeps rows).
+
+    columns: the header; row: ``row(sample) -> values`` in the columns' order (default: compress's
+    columns of a ``Reducer.sample`` dict). Floats are written with ``repr`` (they read back exactly).
+    """
+
+    def __init__(self, path, columns=SERIES_COLUMNS, row=sample_row):
         self.path = path
+        self.columns, self.row = tuple(columns), row
         self._fh = open(path, "w", newline="")
         self._w = csv.writer(self._fh)
-        self._w.writerow(SERIES_COLUMNS)
+        self._w.writerow(self.columns)
 
     def append(self, sample):
-        self._w.writerow([repr(float(v)) if isinstance(v, float) else v for v in sample_row(sample)])
+        self._w.writerow([repr(float(v)) if isinstance(v, float) else v for v in self.row(sample)])
         self._fh.flush()
 
     def close(self):
         self._fh.close()
 
 
-def read_series(path):
-    """Columns of a series CSV as a dict of float lists (for tests and post-processing)."""
+def read_series(path, columns=SERIES_COLUMNS):
+    """Columns of a series CSV as a dict of float lists (for tests and post-processing);
+    ``columns=None``: every column of the file's header, in its order."""
     with open(path, newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    return {k: [float(r[k]) for r in rows] for k in SERIES_COLUMNS}
+        reader = csv.DictReader(fh)
+        rows = list(reader)
+        names = reader.fieldnames if columns is None else columns
+    return {k: [float(r[k]) for r in rows] for k in names}

@@ -1,7 +1,8 @@
 """Time series of the measured quantities as HDF5 (rank 0 writes; one row per sample).
 
-The same columns as the CSV series (``SERIES_COLUMNS``): one resizable 1-D dataset per column at the
-file root, ``step`` as int64 and the others as float64, each with a ``units`` attribute. The file
+The same columns as the CSV series (by default compress's ``SERIES_COLUMNS``; other drivers pass
+their own ``columns``, ``units``, ``row`` and ``description``): one resizable 1-D dataset per column at the
+file root, ``step`` (and compress's ``bonds_*``, or the given ``int_columns``) as int64 and the others as float64, each with a ``units`` attribute. The file
 attributes ``columns`` (the column order) and ``description`` say what the file holds. Rows are
 appended as they come and the file is flushed after each one, so a crash keeps the rows written.
 
@@ -20,7 +21,9 @@ DESCRIPTION = ("pardem time series: one row per sample of the plate displacement
 CHUNK_ROWS = 1024
 
 
-def _dtype(column):
+def _dtype(column, int_columns=None):
+    if int_columns is not None:
+        return np.int64 if column in int_columns else np.float64
     return np.int64 if column == "step" or column.startswith("bonds_") else np.float64
 
 
@@ -28,29 +31,35 @@ class SeriesH5:
     """HDF5 series file; ``append`` writes and flushes one row (so a crash keeps rows).
 
     ``samples``: ``Reducer.sample`` dicts written first (a restart rewrites the rows it kept).
-    The file at ``path`` is replaced.
+    The file at ``path`` is replaced. ``columns``, ``units`` (one per column), ``row`` (``row(sample)
+    -> values`` in the columns' order), ``description`` and ``int_columns`` (the int64 columns;
+    default ``step`` and ``bonds_*``) default to compress's series.
     """
 
-    def __init__(self, path, samples=()):
+    def __init__(self, path, samples=(), columns=SERIES_COLUMNS, units=SERIES_UNITS, row=sample_row,
+                 description=DESCRIPTION, int_columns=None):
+        if len(columns) != len(units):
+            raise ValueError(f"{len(columns)} columns but {len(units)} units")
         self.path = path
+        self.row = row
         self._f = h5py.File(path, "w")
         try:
-            self._f.attrs["columns"] = list(SERIES_COLUMNS)
-            self._f.attrs["description"] = DESCRIPTION
+            self._f.attrs["columns"] = list(columns)
+            self._f.attrs["description"] = description
             self._ds = []
-            for name, unit in zip(SERIES_COLUMNS, SERIES_UNITS):
-                ds = self._f.create_dataset(name, shape=(0,), maxshape=(None,), dtype=_dtype(name),
-                                            chunks=(CHUNK_ROWS,))
+            for name, unit in zip(columns, units):
+                ds = self._f.create_dataset(name, shape=(0,), maxshape=(None,),
+                                            dtype=_dtype(name, int_columns), chunks=(CHUNK_ROWS,))
                 ds.attrs["units"] = unit
                 self._ds.append(ds)
             self.n_rows = 0
-            self._write([sample_row(s) for s in samples])
+            self._write([row(s) for s in samples])
         except BaseException:
             self._f.close()
             raise
 
     def append(self, sample):
-        self._write([sample_row(sample)])
+        self._write([self.row(sample)])
 
     def _write(self, rows):
         if not rows:

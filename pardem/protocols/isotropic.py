@@ -77,6 +77,7 @@ from pardem.config import DeckError, Field, auto_or, boolean, choice, number, nu
 from pardem.physics import hertz_mindlin
 from pardem.engine.reducer import granular_measures
 from pardem.engine.relaxation import Fire
+from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit
 
 ROW_KEYS = ("p0", "p", "Z", "Z_no_rattlers", "solid_fraction", "K_affine", "K_relaxed", "mu_affine",
             "mu_relaxed")
@@ -136,11 +137,39 @@ SCHEMA = {
     "run": {
         "dt_fraction": Field(0.25, number(0.0, 1.0, hi_open=False),
                              "time step as a fraction of the Rayleigh critical step"),
-        "skin": Field(0.2, positive(), "Verlet skin as a fraction of the smallest radius"),
-        "slab_axis": Field("x", choice("x", "y", "z"), "axis the MPI slabs are stacked along"),
+        "skin": Field("auto", auto_or(positive()),
+                      "Verlet skin [m] (displacement budget between list rebuilds); auto = 0.2 x the "
+                      "smallest radius"),
+        "slab_axis": Field("x", choice("x", "y", "z"), "axis the MPI slabs are stacked along: x, y or z"),
         "progress_seconds": Field(10.0, positive(), "seconds between progress lines (rank 0)"),
     },
+    "checkpoint": CHECKPOINT_SECTION,
+    "output": {
+        "vtk_every": Field(0, number(lo=0, lo_open=False, integer=True),
+                           "steps between ParaView snapshots (DIR/paraview/pardem.pvd); 0 = none"),
+        "plot": Field(True, boolean, "draw isotropic.png and force_distribution.png (needs matplotlib)"),
+    },
 }
+
+# the series: one row per equilibrium check (every preparation.check_every steps) of every stage
+STAGES = ("prepare", "K", "mu")      # the series' stage codes 0, 1, 2
+SERIES_COLUMNS = ("step", "time", "pressure_index", "stage", "p0", "pressure", "solid_fraction",
+                  "coordination", "kinetic", "unbalanced", "unbalanced_max", "dt", "cell_rate")
+SERIES_UNITS = ("1", "s", "1", "1", "Pa", "Pa", "1", "1", "1", "1", "1", "s", "1/s")
+SERIES_INT = ("step", "pressure_index", "stage")
+SERIES_DESCRIPTION = (
+    "pardem isotropic series: one row per equilibrium check (every preparation.check_every steps) of "
+    "the preparation at the target pressure p0 (stage 0) and of the relaxations after the bulk (1) "
+    "and shear (2) strain increments; pressure p (compression positive), solid fraction (sphere "
+    "volume over cell volume, overlaps not removed), coordination 2 N_c / N, kinetic = E_k / (N p0 "
+    "V_mean), unbalanced (mean and max unbalanced force over the mean contact force), the time step "
+    "(FIRE adapts it) and the cell's strain rate; one dataset per column with its 'units'")
+
+
+def skin(deck, radii):
+    """The Verlet skin [m] of the deck for these radii ("auto" = 0.2 x the smallest)."""
+    v = deck["run"]["skin"]
+    return 0.2 * float(np.min(radii)) if v == "auto" else float(v)
 
 
 def check_sample(deck):
@@ -252,7 +281,8 @@ def balance(sim, p0=None):
             "kinetic": float(ke / (ref * g[4])) if ref > 0 else float("inf"),
             "unbalanced": float(g[0] / g[1] / mean_fc) if mean_fc > 0 else float("inf"),
             "unbalanced_max": float(fmax / mean_fc) if mean_fc > 0 else float("inf"),
-            "n_contacts": int(round(g[3])), "mean_contact_force": float(mean_fc)}
+            "n_contacts": int(round(g[3])), "mean_contact_force": float(mean_fc),
+            "n_elements": int(round(g[1])), "solid_volume": float(g[4])}
 
 
 def remove_rattlers(n, gid_i, gid_j, min_contacts=4):
@@ -305,17 +335,39 @@ def network(sim, bins=None):
 # ---------------------------------------------------------------------------------------------
 # running
 
-class Progress:
-    def __init__(self, comm, seconds, quiet):
-        self.comm, self.seconds, self.quiet = comm, seconds, quiet
-        self.last = time.perf_counter()
+FIRE_STATE = ("alpha", "downhill", "restarts", "dt_stable", "calls")
 
-    def say(self, text, force=False):
-        now = time.perf_counter()
-        if self.quiet or not self.comm.is_root or (not force and now - self.last < self.seconds):
-            return
-        self.last = now
-        print(text, flush=True)
+
+class SweepRun:
+    """The state of a sweep that a checkpoint holds (``state``, JSON friendly: pressure index,
+    stage, the step its relaxation started at, the increment's stresses, results so far; ``fire``
+    is the live FIRE operation), and what a driver adds to the protocol's runs: ``operations``
+    (checkpoint and ParaView writers), ``on_check(sim, balance)`` after every equilibrium check,
+    ``stop``: the step the run stops at (``StepLimit``, at the first check at or after it).
+
+    ``state``: a checkpoint's (the sweep then continues it); None starts the sweep.
+    """
+
+    def __init__(self, operations=(), on_check=None, stop=None, state=None):
+        self.operations = list(operations)
+        self.on_check = on_check
+        self.stop = stop
+        self.resuming = state is not None
+        self.state = state if state is not None else {
+            "driver": "isotropic", "index": 0, "stage": "prepare", "start": 0, "fire": None,
+            "rows": [], "details": [], "row": None, "det": None, "moduli": None,
+            "increment": None, "done": False}
+        self.fire = None
+
+    def snapshot(self):
+        """The state to store now (the FIRE operation's counters included)."""
+        out = dict(self.state)
+        out["fire"] = None if self.fire is None else {k: getattr(self.fire, k) for k in FIRE_STATE}
+        return out
+
+    def before_run(self, sim):
+        if self.stop is not None and sim.step_count >= self.stop:
+            raise StepLimit(f"stopped at step {sim.step_count} (--steps {self.stop})")
 
 
 class ServoStiffness:
@@ -332,24 +384,38 @@ class ServoStiffness:
         sim.cell.servo_stiffness = kd2 / (3.0 * sim.cell.volume) + 2.0 * p
 
 
-def relax(sim, tol, check_every, max_steps, p0=None, progress=None, label="", operations=()):
+def relax(sim, tol, check_every, max_steps, p0=None, progress=None, label="", operations=(),
+          start=None, run=None):
     """Run (with ``operations``) until the kinetic and force criteria (and with ``p0`` the
-    pressure one) hold.
+    pressure one) hold, checked every ``check_every`` steps from the step ``start`` (default: now).
 
-    Returns ``(balance dict, converged, steps)``; collective.
+    A relaxation resumed from a checkpoint (``start`` before now) first completes the interval
+    it was in; resumed at a check, it makes that check without running. ``run``: the
+    ``SweepRun`` (its operations, checks and stop). Returns ``(balance dict, converged,
+    steps)``; collective.
     """
-    steps = 0
+    start = sim.step_count if start is None else int(start)
+    ops = list(operations) + (run.operations if run is not None else [])
+    first = True
     while True:
-        sim.run(check_every, operations)
-        steps += check_every
+        done = sim.step_count - start
+        at_check = first and done > 0 and done % check_every == 0
+        first = False
+        if not at_check:
+            if run is not None:
+                run.before_run(sim)
+            sim.run(check_every - done % check_every, ops)
+        steps = sim.step_count - start
         b = balance(sim, p0)
         ok = b["kinetic"] < tol["kinetic_tolerance"] and b["unbalanced"] < tol["force_tolerance"]
         if p0 is not None:
             ok = ok and abs(b["pressure"] / p0 - 1.0) < tol["pressure_tolerance"]
         if progress is not None:
-            progress.say(f"  {label} step {sim.step_count}: p = {b['pressure']:.6g} Pa, "
-                         f"E_k/(N p0 V) = {b['kinetic']:.3g}, unbalanced = {b['unbalanced']:.3g}, "
-                         f"contacts {b['n_contacts']}, cell rate {sim.cell.rate[0]:.3g} 1/s")
+            progress.report(sim.step_count, f"{label}: p = {b['pressure']:.6g} Pa, "
+                            f"E_k/(N p0 V) = {b['kinetic']:.3g}, unbalanced = {b['unbalanced']:.3g}, "
+                            f"contacts {b['n_contacts']}, cell rate {sim.cell.rate[0]:.3g} 1/s")
+        if run is not None and run.on_check is not None:
+            run.on_check(sim, b)
         if ok or steps >= max_steps:
             return b, bool(ok), steps
 
@@ -366,19 +432,20 @@ def build_gas(comm, deck):
                                        s["density"])
     dt = run["dt_fraction"] * dt_c
     case = granular.build(comm, pos, radii, s["density"], "hertz_mindlin", params, np.zeros(3),
-                          np.full(3, edge), dt, run["skin"] * float(radii.min()),
+                          np.full(3, edge), dt, skin(deck, radii),
                           viscous_damping=deck["preparation"]["damping"],
                           slab_axis="xyz".index(run["slab_axis"]))
     return case
 
 
-def prepare(comm, deck, p0, case=None, progress=None):
+def prepare(comm, deck, p0, case=None, progress=None, run=None, resume=False):
     """Bring the deck's gas (or the packing of ``case``) to static equilibrium at ``p0`` [Pa].
 
     Frictionless contacts (history cleared), the servo at p0 with viscous damping, until the three
     criteria of the module docstring hold (or ``preparation.max_steps``). The servo is then
     stopped, the cell fixed. Returns ``(case, info)`` with ``info`` the balance measures,
-    ``converged`` and ``steps``. Collective.
+    ``converged`` and ``steps``. Collective. ``run``: the ``SweepRun``; ``resume``: continue the
+    preparation its state was checkpointed in (``case`` restored from that checkpoint).
     """
     if case is None:
         case = build_gas(comm, deck)
@@ -386,16 +453,31 @@ def prepare(comm, deck, p0, case=None, progress=None):
     prep, mat = deck["preparation"], deck["material"]
     c = sim.contacts
     c.params = hertz_mindlin.Params(**contact_params(mat, 0.0, mat["restitution"]))
-    c.history[:] = 0.0
     fire = prep["relaxation"] == "fire"
     sim.viscous_damping = 0.0 if fire else prep["damping"]
-    sim.cell.servo = (float(p0), prep["servo_rate"] / float(p0), prep["max_rate"])
-    dt = sim.dt
+    if resume:
+        dt = float(case.constants["dt"])   # the run's step (FIRE's current one is restored)
+        start = int(run.state["start"])
+    else:
+        c.history[:] = 0.0
+        sim.cell.servo = (float(p0), prep["servo_rate"] / float(p0), prep["max_rate"])
+        dt = sim.dt
+        start = sim.step_count
+        if run is not None:
+            run.state["start"] = start
     ops = [ServoStiffness()]
     if fire:
         ops.append(Fire(n_min=20, dt_max=prep["fire_max_dt"] * dt, dt_min=0.02 * dt))
+        if resume and run.state.get("fire"):
+            for k, v in run.state["fire"].items():
+                setattr(ops[-1], k, v)
+        if run is not None:
+            run.fire = ops[-1]
     b, ok, steps = relax(sim, deck["equilibrium"], prep["check_every"], prep["max_steps"], p0=p0,
-                         progress=progress, label=f"p0 = {p0:.3g} Pa", operations=ops)
+                         progress=progress, label=f"p0 = {p0:.3g} Pa", operations=ops, start=start,
+                         run=run)
+    if run is not None:
+        run.fire = None
     sim.set_dt(dt)
     sim.viscous_damping = prep["damping"]
     sim.cell.servo = None
@@ -404,24 +486,38 @@ def prepare(comm, deck, p0, case=None, progress=None):
     return case, {"balance": b, "converged": ok, "steps": steps}
 
 
-def increment(sim, sign, e, tol, check_every, max_steps, progress=None, label=""):
+def increment(sim, sign, e, tol, check_every, max_steps, progress=None, label="", run=None, resume=False):
     """One affine strain increment ``diag(sign) * e`` of the cell in ONE step (velocities zeroed
     first), then relaxation at fixed cell (kinetic and force criteria). Collective.
 
     Returns a dict: ``s0``, ``affine``, ``relaxed`` stresses [3, 3] [Pa] (tension positive),
     ``L0``, ``L1`` cell edges [3] [m] before and after, ``converged``, ``steps``, ``unbalanced``.
+    ``run``: the ``SweepRun`` (keeps the increment in its state); ``resume``: continue the
+    relaxation of the increment of its state.
     """
-    n = sim.elements.n_total
-    sim.elements.v[:n] = 0.0
-    sim.elements.w[:n] = 0.0
-    s0 = sim.global_stress()
-    L0 = sim.cell.length.copy()
-    sim.cell.rate = np.asarray(sign, dtype=float) * e / sim.dt
-    sim.run(1)
-    sim.cell.rate = np.zeros(3)
-    s_aff = sim.global_stress()
-    L1 = sim.cell.length.copy()
-    b, ok, steps = relax(sim, tol, check_every, max_steps, progress=progress, label=label)
+    if resume:
+        inc = run.state["increment"]
+        s0, s_aff = np.asarray(inc["s0"]), np.asarray(inc["affine"])
+        L0, L1 = np.asarray(inc["L0"]), np.asarray(inc["L1"])
+        start = int(run.state["start"])
+    else:
+        n = sim.elements.n_total
+        sim.elements.v[:n] = 0.0
+        sim.elements.w[:n] = 0.0
+        s0 = sim.global_stress()
+        L0 = sim.cell.length.copy()
+        sim.cell.rate = np.asarray(sign, dtype=float) * e / sim.dt
+        sim.run(1)
+        sim.cell.rate = np.zeros(3)
+        s_aff = sim.global_stress()
+        L1 = sim.cell.length.copy()
+        start = sim.step_count
+        if run is not None:
+            run.state["increment"] = {"s0": s0.tolist(), "affine": s_aff.tolist(), "L0": L0.tolist(),
+                                      "L1": L1.tolist()}
+            run.state["start"] = start
+    b, ok, steps = relax(sim, tol, check_every, max_steps, progress=progress, label=label, start=start,
+                         run=run)
     return {"s0": s0, "affine": s_aff, "relaxed": b["stress"], "L0": L0, "L1": L1, "converged": ok,
             "steps": steps, "unbalanced": b["unbalanced"]}
 
@@ -449,18 +545,32 @@ def measuring_contacts(sim, material):
     sim.cell.rate = np.zeros(3)
 
 
-def moduli(sim, deck, strain, progress=None):
+def moduli(sim, deck, strain, progress=None, run=None, resume=False):
     """Bulk and shear moduli of the static packing of ``sim`` (cell fixed), affine and relaxed [Pa].
 
     See the module docstring (step 5). Returns a dict with ``K_affine, K_relaxed, mu_affine,
-    mu_relaxed``, the ``strain`` used and the relaxations' convergence. Collective.
+    mu_relaxed``, the ``strain`` used and the relaxations' convergence. Collective. ``run``,
+    ``resume``: as for ``prepare`` (the moduli so far are in the run's state).
     """
     tol = deck["equilibrium"]
     every, most = deck["preparation"]["check_every"], deck["moduli"]["max_relax_steps"]
-    measuring_contacts(sim, deck["material"])
-    out = {"strain": strain}
+    if resume:
+        mat = deck["material"]   # the measuring law; the history and the cell are the checkpoint's
+        sim.contacts.params = hertz_mindlin.Params(**contact_params(mat, mat["friction"], 1.0))
+        out = run.state["moduli"]
+    else:
+        measuring_contacts(sim, deck["material"])
+        out = {"strain": strain}
+        if run is not None:
+            run.state["moduli"] = out
     for name, sign, fn in (("K", ISOTROPIC, bulk_modulus), ("mu", SHEAR, shear_modulus)):
-        r = increment(sim, sign, strain, tol, every, most, progress, f"relaxing ({name})")
+        if f"{name}_affine" in out:
+            continue      # measured before the checkpoint this run resumed from
+        if run is not None:
+            run.state["stage"] = name
+        r = increment(sim, sign, strain, tol, every, most, progress, f"relaxing ({name})", run=run,
+                      resume=resume)
+        resume = False
         for kind in ("affine", "relaxed"):
             out[f"{name}_{kind}"] = fn(r["s0"], r[kind], r["L0"], r["L1"])
         out[f"{name}_relax_converged"] = r["converged"]
@@ -469,43 +579,58 @@ def moduli(sim, deck, strain, progress=None):
     return out
 
 
-def sweep(comm, deck, pressures, progress=None):
+def sweep(comm, deck, pressures, progress=None, case=None, run=None):
     """Prepare at each pressure (ascending, continuing the packing), measure, and the moduli.
 
     Returns ``(rows, details, case)``: ``rows`` one dict per pressure with ``ROW_KEYS`` (SI),
     ``details`` per pressure (equilibrium measures, rattlers, force distribution, strain...).
+    ``progress``: a ``pardem.io.progress.Progress``. ``run``: a ``SweepRun`` (the driver's
+    checkpoints, series and stop); with a checkpoint's state and ``case`` restored from it, the
+    sweep continues where that checkpoint was written. The wall times of ``details``
+    (``seconds``, ``moduli_seconds``) count this process only.
     """
-    rows, details = [], []
-    case = None
-    for p0 in sorted(float(p) for p in pressures):
+    run = SweepRun() if run is None else run
+    st = run.state
+    rows, details = st["rows"], st["details"]
+    pressures = sorted(float(p) for p in pressures)
+    while st["index"] < len(pressures):
+        p0 = pressures[st["index"]]
+        resume, run.resuming = run.resuming, False
         t0 = time.perf_counter()
-        if progress is not None:
-            progress.say(f"preparing at p0 = {p0:.6g} Pa", force=True)
-        case, info = prepare(comm, deck, p0, case, progress)
-        sim = case.sim
-        sim.elements.v[:] = 0.0
-        sim.elements.w[:] = 0.0
-        net = network(sim)
-        b = info["balance"]
-        row = {"p0": p0, "p": net["p"], "Z": net["Z"], "Z_no_rattlers": net["Z_no_rattlers"],
-               "solid_fraction": net["solid_fraction"], "K_affine": None, "K_relaxed": None,
-               "mu_affine": None, "mu_relaxed": None}
-        det = {"p0": p0, "converged": info["converged"], "steps": info["steps"],
-               "kinetic": b["kinetic"], "unbalanced": b["unbalanced"],
-               "unbalanced_max": b["unbalanced_max"], "pressure_error": net["p"] / p0 - 1.0,
-               "rattlers": net["rattlers"], "n_contacts": net["n_contacts"],
-               "mean_overlap_ratio": net["mean_overlap_ratio"],
-               "force_distribution": net["force_distribution"], "cell_length": sim.cell.length.tolist()}
-        if progress is not None:
-            progress.say(f"  equilibrium at p0 = {p0:.6g} Pa ({'converged' if info['converged'] else 'NOT converged'}"
-                         f", {info['steps']} steps, {time.perf_counter() - t0:.1f} s): p = {net['p']:.6g} Pa, "
-                         f"Z = {net['Z']:.4f}, Z without rattlers = {net['Z_no_rattlers']:.4f} "
-                         f"({net['rattlers']} rattlers), solid fraction {net['solid_fraction']:.5f}", force=True)
-        if deck["moduli"]["enabled"]:
+        if st["stage"] == "prepare":
+            if progress is not None:
+                progress.say(f"{'continuing' if resume else 'preparing'} at p0 = {p0:.6g} Pa")
+            case, info = prepare(comm, deck, p0, case, progress, run=run, resume=resume)
+            resume = False
+            sim = case.sim
+            sim.elements.v[:] = 0.0
+            sim.elements.w[:] = 0.0
+            net = network(sim)
+            b = info["balance"]
+            row = {"p0": p0, "p": net["p"], "Z": net["Z"], "Z_no_rattlers": net["Z_no_rattlers"],
+                   "solid_fraction": net["solid_fraction"], "K_affine": None, "K_relaxed": None,
+                   "mu_affine": None, "mu_relaxed": None}
+            det = {"p0": p0, "converged": info["converged"], "steps": info["steps"],
+                   "kinetic": b["kinetic"], "unbalanced": b["unbalanced"],
+                   "unbalanced_max": b["unbalanced_max"], "pressure_error": net["p"] / p0 - 1.0,
+                   "rattlers": net["rattlers"], "n_contacts": net["n_contacts"],
+                   "mean_overlap_ratio": net["mean_overlap_ratio"],
+                   "force_distribution": net["force_distribution"], "cell_length": sim.cell.length.tolist()}
+            st["row"], st["det"], st["moduli"], st["increment"] = row, det, None, None
+            st["stage"] = "K" if deck["moduli"]["enabled"] else "measured"
+            if progress is not None:
+                progress.say(f"  equilibrium at p0 = {p0:.6g} Pa ({'converged' if info['converged'] else 'NOT converged'}"
+                             f", {info['steps']} steps, {time.perf_counter() - t0:.1f} s): p = {net['p']:.6g} Pa, "
+                             f"Z = {net['Z']:.4f}, Z without rattlers = {net['Z_no_rattlers']:.4f} "
+                             f"({net['rattlers']} rattlers), solid fraction {net['solid_fraction']:.5f}")
+        row, det, sim = st["row"], st["det"], case.sim
+        if st["stage"] in ("K", "mu"):
             t1 = time.perf_counter()
             e = deck["moduli"]["strain"]
-            e = 0.01 * net["mean_overlap_ratio"] if e == "auto" else float(e)
-            mod = moduli(sim, deck, e, progress)
+            e = 0.01 * det["mean_overlap_ratio"] if e == "auto" else float(e)
+            if resume and progress is not None:
+                progress.say(f"continuing the moduli at p0 = {p0:.6g} Pa ({st['stage']})")
+            mod = moduli(sim, deck, e, progress, run=run, resume=resume)
             for k in ("K_affine", "K_relaxed", "mu_affine", "mu_relaxed"):
                 row[k] = mod[k]
             det["moduli"] = mod
@@ -513,10 +638,12 @@ def sweep(comm, deck, pressures, progress=None):
             if progress is not None:
                 progress.say(f"  moduli (e = {e:.3g}): K = {mod['K_affine']:.6g} affine, "
                              f"{mod['K_relaxed']:.6g} relaxed; mu = {mod['mu_affine']:.6g} affine, "
-                             f"{mod['mu_relaxed']:.6g} relaxed [Pa]", force=True)
+                             f"{mod['mu_relaxed']:.6g} relaxed [Pa]")
         det["seconds"] = time.perf_counter() - t0
         rows.append(row)
         details.append(det)
+        st.update(index=st["index"] + 1, stage="prepare", row=None, det=None, moduli=None, increment=None)
+    st["done"] = True
     return rows, details, case
 
 

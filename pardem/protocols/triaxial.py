@@ -27,15 +27,15 @@ fading) and the broken fraction ``1 - intact / N_cemented`` (each pair counted o
 the coordination ``Z = 2 N_c / N`` (pairs that interact, cement in tension included).
 """
 import math
-import time
 
 import numpy as np
 
 from pardem.engine import cement as cementing
 from pardem.engine import granular
-from pardem.config import Field, boolean, choice, number, positive
+from pardem.config import Field, auto_or, boolean, choice, number, positive
 from pardem.engine.periodic_cell import PeriodicCell
 from pardem.engine.errors import InstabilityError  # noqa: F401  (re-exported for the driver)
+from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit
 
 AXES = "xyz"
 
@@ -85,7 +85,7 @@ SCHEMA = {
     },
     "loading": {
         "confining_pressure": Field(1e6, positive(), "pc [Pa]: preparation pressure and lateral stress"),
-        "axis": Field("z", choice("x", "y", "z"), "axial (loading) axis"),
+        "axis": Field("z", choice("x", "y", "z"), "axial (loading) axis: x, y or z"),
         "strain_rate": Field(2.0, positive(), "axial strain rate [1/s] (compression)"),
         "strain": Field(0.05, number(0.0, 0.5), "final axial strain"),
         "gain": Field(3e-4, positive(), "lateral stress servo gain [1/(Pa s)]"),
@@ -94,14 +94,17 @@ SCHEMA = {
     "run": {
         "dt_fraction": Field(0.25, number(0.0, 1.0, hi_open=False),
                              "time step as a fraction of the critical (Rayleigh / cement) step"),
-        "skin": Field(0.1, positive(), "Verlet skin in mean radii (must exceed the cement's "
-                                       "largest stretch)"),
-        "slab_axis": Field("x", choice("x", "y", "z"), "axis of the slabs of the ranks"),
+        "skin": Field("auto", auto_or(positive()),
+                      "Verlet skin [m] (must exceed the cement's largest stretch sqrt(2 E_max / Sn)); "
+                      "auto = 0.1 x the mean radius sample.radius"),
+        "slab_axis": Field("x", choice("x", "y", "z"), "axis of the slabs of the ranks: x, y or z"),
+        "progress_seconds": Field(10.0, positive(), "seconds between progress lines (rank 0)"),
     },
+    "checkpoint": CHECKPOINT_SECTION,
     "output": {
         "samples": Field(200, number(lo=2, lo_open=False, integer=True), "rows of the loading series"),
-        "progress_seconds": Field(10.0, number(lo=0.0, lo_open=False),
-                                  "seconds between progress lines (0: none)"),
+        "vtk_every": Field(0, number(lo=0, lo_open=False, integer=True),
+                           "steps between ParaView snapshots (DIR/paraview/pardem.pvd); 0 = none"),
         "plot": Field(True, boolean, "draw triaxial.png (needs matplotlib)"),
     },
 }
@@ -110,6 +113,17 @@ COLUMNS = ("step", "time", "eps_axial", "eps_vol", "q", "p", "sigma_axial", "sig
            "sigma_lateral_2", "broken_fraction", "cements_intact", "cements_fading", "coordination",
            "kinetic_energy")
 UNITS = ("1", "s", "1", "1", "Pa", "Pa", "Pa", "Pa", "Pa", "1", "1", "1", "1", "J")
+INT_COLUMNS = ("step", "cements_intact", "cements_fading")
+DESCRIPTION = ("pardem triaxial series: one row per sample of the loading: axial and volumetric strain "
+               "(compression / contraction positive), deviator q, mean stress p, axial and lateral "
+               "stresses (compression positive), cement counts and broken fraction, coordination, "
+               "kinetic energy; one dataset per column with its 'units'")
+
+
+def skin(deck):
+    """The Verlet skin [m] of the deck ("auto" = 0.1 x the mean radius)."""
+    v = deck["run"]["skin"]
+    return 0.1 * deck["sample"]["radius"] if v == "auto" else float(v)
 
 
 def sample_gas(deck):
@@ -157,7 +171,7 @@ def check_deck(deck):
     k = deck["cement"]
     prm = granular.law_params("hertz_mindlin", contact_params(deck, 0.0, True))
     cementing.check(prm, k["threshold_mean"], k["threshold_half_width"],
-                    deck["run"]["skin"] * deck["sample"]["radius"])
+                    skin(deck))
     sample_gas(deck)
 
 
@@ -169,42 +183,48 @@ def build(comm, deck):
     servo = (ld["confining_pressure"], pr["gain"], pr["max_rate"])
     return granular.build(comm, pos, radii, deck["sample"]["density"], "hertz_mindlin",
                           contact_params(deck, pr["friction"], False), np.zeros(3), np.full(3, edge),
-                          time_step(deck), deck["run"]["skin"] * deck["sample"]["radius"],
+                          time_step(deck), skin(deck),
                           servo=servo, viscous_damping=pr["viscous_damping"], velocities=vel,
                           slab_axis=AXES.index(deck["run"]["slab_axis"]), balance_every=200)
 
 
-class _Progress:
-    def __init__(self, comm, seconds, label):
-        self.comm, self.seconds, self.label = comm, seconds, label
-        self.t0 = self.last = time.perf_counter()
+def prepare(case, deck, progress=None, state=None, operations=(), stop=None):
+    """Run the isotropic compression to equilibrium at pc; returns a dict of the end state.
 
-    def __call__(self, text):
-        now = time.perf_counter()
-        if self.seconds > 0 and now - self.last >= self.seconds and self.comm.is_root:
-            print(f"[{self.label} {now - self.t0:7.1f} s] {text}", flush=True)
-            self.last = now
-
-
-def prepare(case, deck, progress_seconds=0.0):
-    """Run the isotropic compression to equilibrium at pc; returns a dict of the end state."""
+    progress: a ``pardem.io.progress.Progress`` (or None). state: the protocol's dict (``met``:
+    consecutive checks met, ``checked_step``: the step of the last check counted), updated as the
+    run goes, so that a run restored from a checkpoint written during the preparation continues
+    it (completing the check interval it was in). operations: of every run (writers); stop: the
+    step at which ``StepLimit`` ends the run early.
+    """
     sim, pr = case.sim, deck["preparation"]
     pc = deck["loading"]["confining_pressure"]
-    every = pr["check_every"]
-    met = 0
-    show = _Progress(sim.comm, progress_seconds, "preparation")
-    while sim.step_count < pr["max_steps"]:
-        sim.run(min(every, pr["max_steps"] - sim.step_count))
-        p = -float(np.trace(sim.stress)) / 3.0
-        ke = sim.kinetic_energy()
-        el = float(sim.comm.sum(sim.contact_energy))
-        ok = abs(p - pc) <= pr["tolerance"] * pc and ke <= pr["kinetic_ratio"] * max(el, 1e-300)
-        met = met + 1 if ok else 0
-        show(f"step {sim.step_count}: p = {p:.4g} Pa (target {pc:.4g}), kinetic/elastic = "
-             f"{ke / max(el, 1e-300):.3g}")
-        if met >= pr["checks"]:
+    every, most = pr["check_every"], pr["max_steps"]
+    st = {} if state is None else state
+    st.setdefault("met", 0)
+    st.setdefault("checked_step", -1)
+    while True:
+        step = sim.step_count
+        at_check = step > 0 and (step % every == 0 or step >= most)
+        if at_check and st["checked_step"] != step:
+            p = -float(np.trace(sim.stress)) / 3.0
+            ke = sim.kinetic_energy()
+            el = float(sim.comm.sum(sim.contact_energy))
+            ok = abs(p - pc) <= pr["tolerance"] * pc and ke <= pr["kinetic_ratio"] * max(el, 1e-300)
+            st["met"] = st["met"] + 1 if ok else 0
+            st["checked_step"] = step
+            if progress is not None:
+                progress.report(step, f"preparation: p = {p:.4g} Pa (target {pc:.4g}), kinetic/elastic = "
+                                      f"{ke / max(el, 1e-300):.3g}")
+        if (at_check and st["met"] >= pr["checks"]) or step >= most:
             break
-    return {"steps": sim.step_count, "converged": met >= pr["checks"],
+        n = min(every - step % every, most - step)
+        if stop is not None:
+            if step >= stop:
+                raise StepLimit(f"stopped at step {step} (--steps {stop}), in the preparation")
+            n = min(n, stop - step)
+        sim.run(n, operations)
+    return {"steps": sim.step_count, "converged": st["met"] >= pr["checks"],
             "pressure": -float(np.trace(sim.stress)) / 3.0, "kinetic_energy": sim.kinetic_energy(),
             "solid_fraction": solid_fraction(sim), "coordination": coordination(sim)}
 
@@ -273,15 +293,21 @@ def sample(case):
 
 
 class Sampler:
-    """Operation recording ``sample`` rows every ``every`` steps (and at the end of each run)."""
+    """Operation recording ``sample`` rows every ``every`` steps (and at the end of each run;
+    with ``final``, only at the multiples of ``every``, the step ``final`` and a first row, so that
+    a run cut in pieces samples the steps of the uncut one)."""
 
-    def __init__(self, case, every, rows=None, on_row=None):
+    def __init__(self, case, every, rows=None, on_row=None, final=None):
         self.case, self.every = case, int(every)
         self.rows = [] if rows is None else rows
         self.on_row = on_row
+        self.final = final
 
     def __call__(self, sim):
         if self.rows and self.rows[-1]["step"] == sim.step_count:
+            return
+        if (self.final is not None and self.rows and sim.step_count % self.every != 0
+                and sim.step_count != self.final):
             return
         row = sample(self.case)
         self.rows.append(row)
@@ -289,22 +315,34 @@ class Sampler:
             self.on_row(row)
 
 
-def load(case, deck, steps=None, rows=None, operations=(), progress_seconds=0.0):
+def load(case, deck, steps=None, rows=None, operations=(), progress=None, stop=None, on_row=None):
     """Run the triaxial loading (``steps`` from its start; default to the final strain), sampling
-    ``output.samples`` rows. Returns the rows."""
+    ``output.samples`` rows (``rows``: those of the loading so far, for a restored case). Returns
+    the rows. progress: a ``pardem.io.progress.Progress``; on_row(row) after every row; stop: the
+    step at which ``StepLimit`` ends the run early (the rows are those of the uncut run)."""
     sim = case.sim
     total = loading_steps(case, deck) if steps is None else int(steps)
     start = case.constants["triaxial_reference"]["step"]
     every = max(1, total // deck["output"]["samples"])
-    show = _Progress(sim.comm, progress_seconds, "loading")
 
     def report(row):
-        show(f"step {row['step'] - start}/{total}: eps_a = {row['eps_axial']:.4f}, q = {row['q']:.4g} Pa, "
-             f"eps_v = {row['eps_vol']:.4g}, broken = {row['broken_fraction']:.3f}")
-    sampler = Sampler(case, every, rows, report)
+        if progress is not None:
+            progress.report(row["step"], f"loading {row['step'] - start}/{total}: eps_a = {row['eps_axial']:.4f}, "
+                                         f"q = {row['q']:.4g} Pa, eps_v = {row['eps_vol']:.4g}, "
+                                         f"broken = {row['broken_fraction']:.3f}")
+        if on_row is not None:
+            on_row(row)
+    sampler = Sampler(case, every, rows, report, final=start + total)
     if not sampler.rows:
         sampler(sim)
-    sim.run(start + total - sim.step_count, [sampler, *operations])
+    n = start + total - sim.step_count
+    if stop is not None and n > 0:
+        if sim.step_count >= stop:
+            raise StepLimit(f"stopped at step {sim.step_count} (--steps {stop}), in the loading")
+        n = min(n, stop - sim.step_count)
+    sim.run(n, [sampler, *operations])
+    if sim.step_count < start + total:
+        raise StepLimit(f"stopped at step {sim.step_count} (--steps {stop}), in the loading")
     return sampler.rows
 
 

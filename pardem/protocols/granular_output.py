@@ -1,0 +1,187 @@
+"""The output and restart contract shared by the granular drivers (``isotropic``, ``triaxial``).
+
+The same contract as ``pardem.drivers.compress``: checkpoints through
+``pardem.io.checkpoint_writer.CheckpointWriter`` (deck ``[checkpoint]``), ``--restart`` from one of
+them (the file is checked complete and written by the same driver, the deck compatible), ``--steps``
+to stop a run early (it leaves a checkpoint to continue from), ParaView snapshots (``[output]
+vtk_every``), a series as CSV and HDF5 with units, a summary JSON and a plot.
+
+A protocol keeps its own state (stage, counters, results so far) in a JSON-friendly dict; the
+checkpoint stores it as the root attribute ``protocol`` next to the granular case
+(``pardem.engine.granular.checkpoint_payload``), and the series rows so far in ``/series``.
+"""
+import datetime
+import json
+import os
+
+import numpy as np
+
+from pardem.config import DeckError, Field, boolean, choice, number
+from pardem.engine import granular
+from pardem.io import checkpoint
+from pardem.io.checkpoint_writer import CheckpointWriter
+from pardem.io.paraview import ParaViewWriter
+from pardem.io.series import SeriesCSV, dict_row
+from pardem.io.series_h5 import SeriesH5
+
+# the [checkpoint] section: the names and meaning of compress's (pardem.config.COMPRESS_SCHEMA)
+CHECKPOINT_SECTION = {
+    "every_steps": Field(0, number(lo=0, lo_open=False, integer=True), "steps between checkpoints; 0 = off"),
+    "every_seconds": Field(1800.0, number(lo=0.0, lo_open=False),
+                           "wall seconds between checkpoints; 0 = off"),
+    "keep": Field(3, number(lo=1, lo_open=False, integer=True), "how many checkpoints to keep"),
+    "at_end": Field(True, boolean, "write a checkpoint when the run ends (also when --steps stops it)"),
+    "driver": Field("auto", choice("auto", "mpio", "serial"),
+                    "HDF5 writing: \"mpio\" (collective MPI-IO), \"serial\" (ranks take turns) or "
+                    "\"auto\" (mpio when h5py is built with MPI)"),
+}
+
+STEPS_HELP = ("stop the run at step N, counted from its start over all stages, and write a checkpoint "
+              "to continue from with --restart (default: run the protocol to its end)")
+
+
+class StepLimit(Exception):
+    """The run reached its ``--steps`` limit (not an error: the driver checkpoints and stops)."""
+
+
+def default_out(comm, driver, restart):
+    """``runs/<driver>-<timestamp>``, or the run directory of the checkpoint being continued."""
+    if restart:
+        parent = os.path.dirname(os.path.abspath(restart))
+        if os.path.basename(parent) == "checkpoints":
+            return os.path.dirname(parent)
+    stamp = comm.bcast(datetime.datetime.now().strftime("%Y%m%d-%H%M%S"))
+    return os.path.join("runs", f"{driver}-{stamp}")
+
+
+def deck_differences(old, new, schema, may_change=(), may_change_sections=("output", "checkpoint")):
+    """``(section.key, old, new)`` of the keys whose values differ between two checked decks and
+    may not on restart (the policy of ``pardem.config.physics_differences``, for any schema: a key
+    missing from the old deck counts as its default)."""
+    out = []
+    for section, table in new.items():
+        if section in may_change_sections:
+            continue
+        for key, value in table.items():
+            name = f"{section}.{key}"
+            if name in may_change:
+                continue
+            if key in old.get(section, {}):
+                before = old[section][key]
+            else:
+                f = schema.get(section, {}).get(key)
+                before = None if f is None else f.default
+            if _plain(before) != _plain(value):
+                out.append((name, before, value))
+    return out
+
+
+def _plain(v):
+    return [_plain(x) for x in v] if isinstance(v, (list, tuple)) else v
+
+
+def inspect_restart(path, driver):
+    """The checked attributes of checkpoint ``path`` (``checkpoint.inspect``) with its protocol
+    state decoded (``meta["protocol"]``). CheckpointError when it is incomplete, unreadable or not
+    a checkpoint of ``driver``."""
+    meta = checkpoint.inspect(path)
+    raw = meta.get("protocol")
+    state = json.loads(raw) if isinstance(raw, (str, bytes)) else raw
+    if not isinstance(state, dict) or state.get("driver") != driver:
+        found = state.get("driver") if isinstance(state, dict) else None
+        raise checkpoint.CheckpointError(
+            f"--restart {path}: not a checkpoint of the {driver} driver"
+            + (f" (written by the {found} driver)" if found else ""))
+    meta["protocol"] = state
+    return meta
+
+
+def check_restart(path, meta, deck, schema, steps, may_change, what):
+    """DeckError when the restart's deck would change the physics or ``--steps`` is before the
+    checkpoint; ``what`` names the keys that may change (for the message)."""
+    if steps is not None and steps <= int(meta["step"]):
+        raise DeckError(f"--steps {steps} is not after the checkpoint's step {int(meta['step'])}: --steps "
+                        f"counts the run's total steps from its start")
+    diffs = deck_differences(meta["deck"], deck, schema, may_change)
+    if diffs:
+        name, old, new = diffs[0]
+        raise DeckError(f"{name} = {new!r} differs from the checkpoint's {old!r}: a restart may change "
+                        f"only {what} and the output and checkpoint settings")
+
+
+def payload(case, deck, state, series_rows, columns):
+    """``(groups, series, attrs)`` of the case plus the protocol's state and the series so far."""
+    groups, _, attrs = granular.checkpoint_payload(case)
+    attrs["deck"] = deck
+    attrs["protocol"] = state
+    series = {k: np.asarray([r[k] for r in series_rows], dtype=np.float64) for k in columns}
+    return groups, series, attrs
+
+
+def rows_of(series, columns, int_columns=()):
+    """The series rows (dicts) of a checkpoint's ``/series`` columns."""
+    n = min((len(series[k]) for k in columns if k in series), default=0)
+    return [{k: (int(series[k][i]) if k in int_columns else float(series[k][i])) for k in columns}
+            for i in range(n)]
+
+
+class Every:
+    """An operation calling ``op`` only at the multiples of ``every`` (``Simulation.run`` also calls
+    its operations once at the end of every run: the protocols run in many short runs)."""
+
+    def __init__(self, op, every):
+        self.op, self.every = op, int(every)
+
+    def __call__(self, sim):
+        if sim.step_count % self.every == 0:
+            self.op(sim)
+
+
+class Series:
+    """Rank 0's series: ``NAME.csv`` and ``NAME.h5`` (units) in ``out``, rewritten from the rows of
+    a restarted run, plus the rows in memory (for the checkpoints). ``append`` skips a row of a
+    step already written (a run resumed at a check it had recorded)."""
+
+    def __init__(self, comm, out, name, columns, units, description, rows=(), int_columns=("step",)):
+        self.columns, self.rows = tuple(columns), list(rows)
+        self.root = comm.is_root
+        self.csv = self.h5 = None
+        self.paths = [os.path.join(out, f"{name}.csv"), os.path.join(out, f"{name}.h5")]
+        if self.root:
+            row = dict_row(self.columns)
+            self.csv = SeriesCSV(self.paths[0], self.columns, row)
+            for r in self.rows:
+                self.csv.append(r)
+            self.h5 = SeriesH5(self.paths[1], self.rows, self.columns, units, row, description,
+                               int_columns=set(int_columns))
+
+    def append(self, row):
+        if self.rows and self.rows[-1]["step"] == row["step"]:
+            return
+        self.rows.append(row)
+        if self.root:
+            self.csv.append(row)
+            self.h5.append(row)
+
+    def close(self):
+        if self.root:
+            self.csv.close()
+            self.h5.close()
+
+
+def writers(case, deck, out, restart, state_fn):
+    """The checkpoint writer (``state_fn() -> (deck, state, rows, columns)``) and the ParaView
+    operation (or None) of a granular run in ``out``."""
+    ck = deck["checkpoint"]
+    sim = case.sim
+    writer = CheckpointWriter(lambda: payload(case, *state_fn()), os.path.join(out, "checkpoints"),
+                              ck["every_steps"], ck["every_seconds"], ck["keep"], ck["driver"],
+                              start_step=sim.step_count)
+    paraview = None
+    if deck["output"]["vtk_every"]:
+        pv = ParaViewWriter(os.path.join(out, "paraview"), sim.comm, deck["output"]["vtk_every"],
+                            resume_step=sim.step_count if restart else None, dt=sim.dt)
+        paraview = Every(pv, deck["output"]["vtk_every"])
+        if sim.step_count == 0:
+            pv(sim)    # the initial state
+    return writer, paraview
