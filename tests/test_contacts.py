@@ -662,3 +662,111 @@ def test_contact_modules_import_neither_mpi_nor_h5py():
         names |= {node.module.split(".")[0] for node in ast.walk(tree)
                   if isinstance(node, ast.ImportFrom) and node.module}
         assert not names & {"mpi4py", "h5py"}, module.__name__
+
+
+# ------------------------------------------------------------------------------------------------
+# the registry and the generic loops (pardem.physics.contact_laws, pair_loop)
+
+def _registry_models():
+    """Every sub-model of every registered law (a new law must add its own here)."""
+    cement = dict(cement_normal=2e4, cement_tangential=1e4, cement_fade_time=3e-6)
+    return {
+        "hertz_mindlin": [hm.Params(YOUNG, NU, friction=0.4),
+                          hm.Params(YOUNG, NU, friction=0.4, restitution=0.6),
+                          hm.Params(YOUNG, NU, friction=0.4, **cement),
+                          hm.Params(YOUNG, NU, friction=0.4, restitution=0.6, **cement)],
+        "linear": [lc.Params(kn=3e5, kt=1e5, friction=0.4),
+                   lc.Params(kn=3e5, kt=1e5, friction=0.4, restitution=0.6)],
+    }
+
+
+def _cemented_history(rng, n_pairs, width):
+    """Random stored tangential forces; with 9 columns also intact, fading and absent cements."""
+    hist = np.zeros((n_pairs, width))
+    hist[:, :3] = rng.normal(size=(n_pairs, 3)) * 0.05
+    if width == hm.WIDTH_CEMENTED:
+        state = rng.choice([1.0, -0.5, 0.0], size=n_pairs)
+        live = state != 0.0
+        hist[live, hm.CEMENT_FORCE:hm.CEMENT_FORCE + 3] = rng.normal(size=(live.sum(), 3)) * 0.01
+        hist[live, hm.CEMENT_DELTA0] = rng.uniform(-2e-5, 5e-5, live.sum())
+        hist[live, hm.CEMENT_THRESHOLD] = rng.uniform(1e-9, 1e-7, live.sum())
+        hist[:, hm.CEMENT_STATE] = state
+    return hist
+
+
+def test_registry_rows_follow_the_protocol():
+    from pardem.physics import contact_laws
+    assert set(_registry_models()) == set(contact_laws.LAWS)
+    members = [m for m in vars(contact_laws.ContactLaw) if not m.startswith("_")]
+    for name, row in contact_laws.LAWS.items():
+        for member in members:
+            assert hasattr(row, member), (name, member)
+        assert contact_laws.law(name) is row
+        for params in _registry_models()[name]:
+            assert isinstance(params, row.Params)
+            assert row.history_width(params) >= 3
+            k_constant, k_hertz = row.normal_stiffness(params)
+            assert k_constant >= 0.0 and k_hertz >= 0.0 and k_constant + k_hertz > 0.0
+            assert 0.0 < row.critical_time_step(params, np.array([1e-3]), RHO) < np.inf
+    with pytest.raises(ValueError, match="contact law"):
+        contact_laws.law_params("plastic", {})
+
+
+@pytest.mark.parametrize("name,model", [(n, k) for n, ms in _registry_models().items()
+                                        for k in range(len(ms))])
+def test_generic_loop_equals_all_pairs_twin_and_single_bitwise(name, model):
+    """The neighbour-list loop, its all-pairs twin and ``single`` are one generic code path per
+    law function: on a pair list in (i, j) order they agree bit for bit (forces, torques, history,
+    energy), for every law and sub-model (damping, cement)."""
+    from pardem.physics import contact_laws
+    law = contact_laws.LAWS[name]
+    params = _registry_models()[name][model]
+    rng = np.random.default_rng(50 + model)
+    e = _random_cluster(rng)
+    i, j = _all_pairs(e)
+    dt = 1e-6
+    width = law.history_width(params)
+    hist = _cemented_history(rng, len(i), width)
+    full = np.zeros((e.n_total, e.n_total, width))
+    full[i, j] = hist
+    before = hist.copy()
+    energy = law.compute(params, e, i, j, hist, dt)
+    f, t = e.f.copy(), e.t.copy()
+    assert np.any(f != 0.0) and np.any(hist != before)
+    for p in range(len(i)):   # single: the step's loads of one pair, nothing modified
+        r = law.single(params, e, int(i[p]), int(j[p]), before[p], dt)
+        np.testing.assert_array_equal(r["history"], hist[p])
+    e.f[:] = 0.0
+    e.t[:] = 0.0
+    energy_bf = law.compute_all_pairs(params, e, full, dt)
+    np.testing.assert_array_equal(e.f, f)
+    np.testing.assert_array_equal(e.t, t)
+    np.testing.assert_array_equal(full[i, j], hist)
+    assert energy_bf == energy
+    # without the energy the loop gives the same loads
+    e.f[:] = 0.0
+    e.t[:] = 0.0
+    hist2 = before.copy()
+    assert np.isnan(law.compute(params, e, i, j, hist2, dt, with_energy=False))
+    np.testing.assert_array_equal(e.f, f)
+    np.testing.assert_array_equal(hist2, hist)
+
+
+def test_wall_laws_are_the_pair_laws_with_a_sphere_of_infinite_radius():
+    """A sphere on a wall and the same sphere against a huge, heavy partner sphere give the same
+    normal force (the walls use the pair laws' normal functions with R* = R, m* = m)."""
+    from pardem.physics import walls as W
+    R, delta, big = 1e-3, 2e-6, 1e3
+    for law, pair_params, wall_params in [
+            ("hertz", hm.Params(YOUNG, NU, friction=0.0),
+             W.Params(law="hertz", young=YOUNG, poisson=NU, wall_young=YOUNG, wall_poisson=NU)),
+            ("linear", lc.Params(kn=3e5, kt=1e5, friction=0.0),
+             W.Params(law="linear", kn=3e5, kt=1e5))]:
+        e = Elements.from_spheres(np.array([[0.0, 0.0, R - delta]]), np.array([R]), RHO)
+        r_wall = W.single(wall_params, e, 0, (0.0, 0.0, 1.0), 0.0)
+        p = Elements.from_spheres(np.array([[0.0, 0.0, R - delta], [0.0, 0.0, -big]]),
+                                  np.array([R, big]), RHO)
+        module = hm if law == "hertz" else lc
+        r_pair = module.single(pair_params, p, 0, 1, np.zeros(3), 1e-6)
+        assert r_wall["touching"] and r_pair["touching"]
+        assert r_wall["force"][2] == pytest.approx(r_pair["force_i"][2], rel=1e-5)

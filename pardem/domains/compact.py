@@ -9,9 +9,11 @@ homogeneous, statistically isotropic packing.
    volume ``V``, the requested mean radius ``R`` and the target fraction ``phi_t = 0.64``:
    ``n = round(phi_t V / (4/3 pi R^3 (1 + d^2)))`` (``E[(1 + d U)^3] = 1 + d^2``).
 2. Harmonic overlap energy ``U = 1/2 sum delta^2`` over overlapping pairs and sphere-wall contacts
-   (unit stiffness, lengths in units of ``R``), minimised by FIRE (Bitzek et al. 2006, with the
-   semi-implicit Euler step and the half-step back-off of FIRE 2.0, Guenole et al. 2020) over the
-   Verlet list of ``pardem.physics.neighbours``. All radii are scaled by one common factor, so
+   (unit stiffness, lengths in units of ``R``: the ``linear_contact`` normal law with ``kn = 1`` on
+   the ``contact_frame`` pair geometry), minimised by FIRE (Bitzek et al. 2006, with the
+   semi-implicit Euler step and the half-step back-off of FIRE 2.0, Guenole et al. 2020; the
+   power, mixing and back-off kernels of ``pardem.physics.fire``) over the Verlet list of
+   ``pardem.physics.neighbours``. All radii are scaled by one common factor, so
    the shape of the size distribution is kept.
 3. The random centres are quenched at a solid fraction of 0.66 (above jamming), then the radius
    scale is bisected: a state is jammed when its energy has not vanished (``U / n > 1e-14``)
@@ -62,6 +64,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from pardem.physics import fire
+from pardem.physics.contact_frame import overlap, pair_separation
+from pardem.physics.linear_contact import linear_energy, linear_normal
 from pardem.physics.neighbours import VerletList, build_pairs
 
 TARGET_FRACTION = 0.64      # sets the element count; the packing ends at its own jamming fraction
@@ -147,18 +152,14 @@ def overlap_forces(x, radius, pi, pj, shift, length, walls, f):
     for k in range(pi.shape[0]):
         i = pi[k]
         j = pj[k]
-        d0 = (x[j, 0] - x[i, 0]) + shift[k, 0]
-        d1 = (x[j, 1] - x[i, 1]) + shift[k, 1]
-        d2 = (x[j, 2] - x[i, 2]) + shift[k, 2]
-        s = radius[i] + radius[j]
-        dist2 = d0 * d0 + d1 * d1 + d2 * d2
+        d0, d1, d2, dist2, _, _, s = pair_separation(i, j, shift[k, 0], shift[k, 1], shift[k, 2],
+                                                     x, radius)
         if dist2 < s * s and dist2 > 0.0:     # coincident centres have no direction
-            dist = np.sqrt(dist2)
-            delta = s - dist
-            energy += 0.5 * delta * delta
+            dist, delta = overlap(dist2, s)
+            energy += linear_energy(1.0, delta)
             if delta > worst:
                 worst = delta
-            c = delta / dist
+            c = linear_normal(1.0, 1.0, delta, 0.0, 0.0, False) / dist
             f[i, 0] -= c * d0
             f[i, 1] -= c * d1
             f[i, 2] -= c * d2
@@ -173,12 +174,12 @@ def overlap_forces(x, radius, pi, pj, shift, length, walls, f):
             low = radius[k] - x[k, d]
             high = x[k, d] + radius[k] - length[d]
             if low > 0.0:
-                energy += 0.5 * low * low
-                f[k, d] += low
+                energy += linear_energy(1.0, low)
+                f[k, d] += linear_normal(1.0, 1.0, low, 0.0, 0.0, False)
                 worst_wall = max(worst_wall, low)
             if high > 0.0:
-                energy += 0.5 * high * high
-                f[k, d] -= high
+                energy += linear_energy(1.0, high)
+                f[k, d] -= linear_normal(1.0, 1.0, high, 0.0, 0.0, False)
                 worst_wall = max(worst_wall, high)
     return energy, worst, worst_wall
 
@@ -206,18 +207,16 @@ def fire_relax(x, v, f, radius, pi, pj, shift, length, walls, state, budget, max
         if energy < jammed_energy * n:
             status = _UNJAMMED
             break
-        p = 0.0
         fmax2 = 0.0
         for k in range(n):
             fk2 = f[k, 0] ** 2 + f[k, 1] ** 2 + f[k, 2] ** 2
             if fk2 > fmax2:
                 fmax2 = fk2
-            p += f[k, 0] * v[k, 0] + f[k, 1] * v[k, 1] + f[k, 2] * v[k, 2]
         if fmax2 < force_tol * force_tol:
             status = _CONVERGED
             break
         state[3] += 1.0
-        if p > 0.0:
+        if fire.power_sums(v, f, n)[0] > 0.0:
             n_pos += 1.0
             if n_pos > N_DELAY:
                 dt = min(dt * F_INC, DT_MAX)
@@ -227,29 +226,16 @@ def fire_relax(x, v, f, radius, pi, pj, shift, length, walls, state, budget, max
             n_pos = 0.0
             dt = max(dt * F_DEC, DT_MIN)
             alpha = ALPHA_START
-            vmax2 = 0.0
-            for k in range(n):
-                vk2 = 0.0
-                for d in range(3):
-                    x[k, d] -= 0.5 * dt * v[k, d]
-                    vk2 += v[k, d] * v[k, d]
-                    v[k, d] = 0.0
-                if vk2 > vmax2:
-                    vmax2 = vk2
-            moved += 0.5 * dt * np.sqrt(vmax2)
-        vv = 0.0
-        ff = 0.0
-        for k in range(n):
+            moved += 0.5 * dt * np.sqrt(fire.back_off(x, v, 0.5 * dt, n))
+        for k in range(n):     # semi-implicit Euler: kick, then FIRE's mixing, then drift
             for d in range(3):
                 v[k, d] += dt * f[k, d]
-                vv += v[k, d] * v[k, d]
-                ff += f[k, d] * f[k, d]
-        mix = alpha * np.sqrt(vv / ff) if ff > 0.0 else 0.0
+        _, vv, ff = fire.power_sums(v, f, n)
+        fire.mix(v, f, alpha, np.sqrt(vv / ff) if ff > 0.0 else 0.0, n)
         vmax2 = 0.0
         for k in range(n):
             vk2 = 0.0
             for d in range(3):
-                v[k, d] = (1.0 - alpha) * v[k, d] + mix * f[k, d]
                 x[k, d] += dt * v[k, d]
                 vk2 += v[k, d] * v[k, d]
             if vk2 > vmax2:

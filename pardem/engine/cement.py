@@ -19,6 +19,7 @@ pair while intact (``pardem.engine.contacts``). Its normal stretch at rupture is
 import numpy as np
 
 from pardem.physics import hertz_mindlin as hm
+from pardem.physics.contact_frame import pair_geometry
 
 _M64 = (1 << 64) - 1
 
@@ -72,10 +73,9 @@ def cement_contacts(sim, mean, half_width, seed):
     if c.history.shape[1] != hm.WIDTH_CEMENTED:
         raise ValueError("cement_contacts: the contacts' history is not cemented (set cemented "
                          "parameters first)")
-    s = c.shift if c.shift is not None else np.zeros((len(c.i), 3))
-    d = (e.x[c.j] - e.x[c.i]) + s            # the kernels' grouping: the same bits on both ranks
-    dist = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
-    delta = (e.radius[c.i] + e.radius[c.j]) - dist
+    # the kernels' own overlap (the same bits on both ranks, and delta0 is exactly the
+    # overlap the force kernel sees: the cement starts unstressed)
+    delta = pair_geometry(c.i, c.j, c.shift, e.x, e.radius)[3]
     glue = (delta > 0.0) & (c.history[:, hm.CEMENT_STATE] == 0.0)
     h = c.history
     h[glue, hm.CEMENT_FORCE:hm.CEMENT_FORCE + 3] = 0.0

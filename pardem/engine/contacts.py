@@ -1,9 +1,10 @@
 """Sphere-sphere contacts of one rank: the Verlet list, the per-pair history and the force call.
 
-One contact law per run (``hertz_mindlin`` or ``linear_contact``, the model interface of STYLE
-pattern 3: ``Params``, ``compute``). Pairs come from ``pardem.physics.neighbours.VerletList`` with
-at least one owned end, ordered by global id; a pair joined by an intact bond is left out (the
-bond carries the interaction).
+One contact law per run: a row of ``pardem.physics.contact_laws`` (``hertz_mindlin`` or
+``linear_contact``, interface ``contact_laws.ContactLaw``: ``Params``, ``compute``,
+``history_width``, ``persistent_rows``, ``normal_stiffness``). Pairs come from
+``pardem.physics.neighbours.VerletList`` with at least one owned end, ordered by global id; a
+pair joined by an intact bond is left out (the bond carries the interaction).
 
 History (the tangential elastic force, [n_pairs, 3] N; wider when the law says so through its
 ``history_width(params)``, e.g. 9 columns for cemented Hertz-Mindlin contacts) belongs to a pair,
@@ -52,26 +53,23 @@ def lookup(keys, table_keys, table_values, width):
 
 
 class Contacts:
-    """Contacts of one rank's elements under ``law`` (module) with ``params``.
+    """Contacts of one rank's elements under ``law`` (a ``contact_laws`` row) with ``params``.
 
     skin [m]: Verlet skin; cell: the ``PeriodicCell`` or None; reach [m]: the largest centre
     distance of a listed pair, ``2 R_max + skin`` over all ranks (it scales the rebuild margin of
     a deforming cell, so it must be the same on every rank). After ``rebuild``: ``i, j`` int32
     rows, ``shifts`` int8 [n, 3] image of j, ``keys`` int64, ``history`` [n, width] (``width``
-    from ``law.history_width(params)``, 3 when the law does not define it).
+    from ``law.history_width(params)``).
     After ``compute``: ``energy`` [J] and ``sums`` [10] (Love-Weber sums and contact count, this
     rank's share; see ``contact_frame.add_love_weber``). ``lost``: history rows the law marks
     persistent (``law.persistent_rows``, e.g. intact cements) that a rebuild could not find again
     in reach (0 when the parameters are checked, see the module docstring).
     """
 
-    WIDTH = 3
-
     def __init__(self, law, params, skin, cell=None, reach=0.0):
         self.law = law
         self.params = params
-        width_of = getattr(law, "history_width", None)
-        self.width = int(width_of(params)) if width_of is not None else self.WIDTH
+        self.width = int(law.history_width(params))
         self.skin = float(skin)
         self.cell = cell
         periodic = (False,) * 3 if cell is None else tuple(bool(p) for p in cell.periodic)
@@ -96,8 +94,7 @@ class Contacts:
         """Change the law's parameters between steps (e.g. friction after a frictionless
         preparation, or the cement springs before cementation). The history is widened with zero
         columns, or narrowed when the dropped columns are all zero (else ValueError)."""
-        width_of = getattr(self.law, "history_width", None)
-        width = int(width_of(params)) if width_of is not None else self.WIDTH
+        width = int(self.law.history_width(params))
         h = self.history
         if width > h.shape[1]:
             h = np.concatenate([h, np.zeros((len(h), width - h.shape[1]))], axis=1)
@@ -143,9 +140,8 @@ class Contacts:
             keep = ~np.isin(keys, pair_keys(bonds.gid_i[acting], bonds.gid_j[acting]))
             pairs, shifts, keys = pairs[keep], shifts[keep], keys[keep]
         table_keys = pair_keys(table["gid_i"], table["gid_j"])
-        keep = getattr(self.law, "persistent_rows", None)
-        if keep is not None and len(table_keys):
-            must = keep(table["history"])
+        if len(table_keys):
+            must = self.law.persistent_rows(table["history"])
             if np.any(must):   # e.g. an intact cement whose spheres moved beyond the reach
                 self.lost += int(np.count_nonzero(~np.isin(np.unique(table_keys[must]), keys)))
         self.adopt(pairs[:, 0], pairs[:, 1], shifts, keys,

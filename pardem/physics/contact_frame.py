@@ -1,8 +1,11 @@
 """Kinematics shared by the sphere-sphere contact laws (docs/physics.md section 8).
 
-Used by ``hertz_mindlin`` and ``linear_contact``; every function is a small inline Numba kernel on
-scalars, so a contact law is written as a fixed sequence of calls (geometry, relative motion,
-normal law, tangential history with Coulomb cap, output).
+Used by the generic pair loops (``pardem.physics.pair_loop``), the contact laws
+(``hertz_mindlin``, ``linear_contact``), the walls and the diagnostics that need a pair's geometry
+(``pair_geometry``: cementation, contact-force reports, the packing generator); every function but
+``pair_geometry`` is a small inline Numba kernel on scalars, so a contact law is written as a fixed
+sequence of calls (geometry, relative motion, normal law, tangential history with Coulomb cap,
+output).
 
 Conventions (the same in every contact law of pardem)
 -----------------------------------------------------
@@ -54,12 +57,19 @@ def pair_separation(i, j, s0, s1, s2, x, radius):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def overlap(dist2, rsum):
+    """Centre distance ``dist`` [m] and overlap ``delta = rsum - dist`` [m] from ``dist^2`` [m^2]
+    and the sum of the radii ``rsum`` [m]. Returns ``(dist, delta)``."""
+    dist = np.sqrt(dist2)
+    return dist, rsum - dist
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def contact_geometry(d0, d1, d2, dist2, ri, rj, rsum):
     """Unit normal ``n`` (i -> j), overlap ``delta`` [m] and the arms ``li, lj`` [m] of a pair
     (module conventions). Returns ``(n0, n1, n2, delta, li, lj)``."""
-    dist = np.sqrt(dist2)
+    dist, delta = overlap(dist2, rsum)
     inv = 1.0 / dist
-    delta = rsum - dist
     return d0 * inv, d1 * inv, d2 * inv, delta, ri - 0.5 * delta, rj - 0.5 * delta
 
 
@@ -203,16 +213,47 @@ def write_pair(out, n0, n1, n2, fn, ft0, ft1, ft2, li, lj):
     out[8] = lj * c2
 
 
-def check_pairs(i, j, history, shift):
+@njit(cache=True, error_model="numpy")
+def _pair_geometry(pi, pj, shift, periodic, x, radius, d, n, dist, delta):
+    for p in range(pi.shape[0]):
+        s0 = s1 = s2 = 0.0
+        if periodic:
+            s0, s1, s2 = shift[p, 0], shift[p, 1], shift[p, 2]
+        d0, d1, d2, dist2, ri, rj, rsum = pair_separation(pi[p], pj[p], s0, s1, s2, x, radius)
+        n0, n1, n2, dl, _, _ = contact_geometry(d0, d1, d2, dist2, ri, rj, rsum)
+        d[p, 0], d[p, 1], d[p, 2] = d0, d1, d2
+        n[p, 0], n[p, 1], n[p, 2] = n0, n1, n2
+        dist[p], delta[p] = overlap(dist2, rsum)
+
+
+def pair_geometry(i, j, shift, x, radius):
+    """Geometry of the pairs ``(i[p], j[p])`` exactly as the contact kernels see it (the same bits).
+
+    i, j : [n_pairs] rows; shift : None or [n_pairs, 3] periodic image shift of ``x_j`` [m];
+    x [n, 3] [m], radius [n] [m]. Returns ``(d, n, dist, delta)``: branch vector i -> j [n_pairs, 3]
+    [m], unit normal [n_pairs, 3], centre distance [n_pairs] [m] and overlap [n_pairs] [m]
+    (positive in contact).
+    """
+    m = len(i)
+    d, n, dist, delta = np.empty((m, 3)), np.empty((m, 3)), np.empty(m), np.empty(m)
+    _pair_geometry(np.ascontiguousarray(i), np.ascontiguousarray(j),
+                   NO_SHIFT if shift is None else shift, shift is not None, x, radius, d, n, dist,
+                   delta)
+    return d, n, dist, delta
+
+
+def check_pairs(i, j, history, shift, width=3):
     """Check the shapes of a pair list for the Python dispatchers (O(1), no scan of the rows).
 
-    i, j : [n_pairs] integer rows; history : [n_pairs, 3] float64; shift : None or [n_pairs, 3].
+    i, j : [n_pairs] integer rows; history : [n_pairs, width] float64; shift : None or
+    [n_pairs, 3].
     """
     n_pairs = len(i)
     if len(j) != n_pairs:
         raise ValueError(f"pair arrays differ in length: {len(i)} i, {len(j)} j")
-    if history.shape != (n_pairs, 3) or history.dtype != np.float64:
-        raise ValueError(f"history must be float64 [{n_pairs}, 3], got {history.dtype} {history.shape}")
+    if history.shape != (n_pairs, width) or history.dtype != np.float64:
+        raise ValueError(f"history must be float64 [{n_pairs}, {width}], got {history.dtype} "
+                         f"{history.shape}")
     if shift is not None and (shift.shape != (n_pairs, 3) or shift.dtype != np.float64):
         raise ValueError(f"shift must be float64 [{n_pairs}, 3], got {shift.dtype} {shift.shape}")
 

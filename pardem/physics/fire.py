@@ -5,7 +5,11 @@ One FIRE update after a velocity-Verlet step, with the global ``P = F . v``, ``|
 (translation only: used on frictionless packings, whose torques vanish):
 
 * ``P > 0`` (moving downhill): ``v <- (1 - a) v + a |v| F / |F|``, steering the motion along the force;
-* ``P <= 0`` (uphill): ``v <- 0`` (and ``w <- 0``), the mixing ``a`` restarts.
+* ``P <= 0`` (uphill): ``v <- 0`` (and ``w <- 0``), the mixing ``a`` restarts; FIRE 2.0 (Guenole et
+  al. 2020) first steps half a step back (``back_off``).
+
+Used by ``pardem.engine.relaxation`` (the time loop's FIRE) and ``pardem.domains.compact`` (the
+packing generator's minimiser).
 """
 from numba import njit
 
@@ -39,3 +43,19 @@ def stop(v, w, n_owned):
         for d in range(3):
             v[k, d] = 0.0
             w[k, d] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def back_off(x, v, h, n_owned):
+    """FIRE 2.0 back-off on the owned rows: ``x <- x - h v`` [m] (``h`` [s], half the step), then
+    ``v <- 0``. Returns the largest ``|v|^2`` [m^2/s^2] before the stop (the travel bound)."""
+    vmax2 = 0.0
+    for k in range(n_owned):
+        vk2 = 0.0
+        for d in range(3):
+            x[k, d] -= h * v[k, d]
+            vk2 += v[k, d] * v[k, d]
+            v[k, d] = 0.0
+        if vk2 > vmax2:
+            vmax2 = vk2
+    return vmax2

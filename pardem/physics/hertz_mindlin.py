@@ -2,6 +2,8 @@
 
 Kinematics, sign conventions, the history carry and the output layout are those of
 ``pardem.physics.contact_frame`` (normal ``n`` from i to j, history = elastic tangential force on i).
+A row of ``pardem.physics.contact_laws``: the per-pair functions below (``pair_function``) run in
+the shared loops of ``pardem.physics.pair_loop``.
 
 Laws
 ----
@@ -91,10 +93,9 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, add_love_weber, affine_motion,
-                                          carry_force, check_pairs, clear_history, contact_geometry,
-                                          pair_separation, relative_motion, scatter_pair,
-                                          update_history, write_pair)
+from pardem.physics.contact_frame import carry_force, clear_history, update_history
+from pardem.physics.pair_loop import law_interface, touching
+from pardem.physics.timestep import rayleigh_time_step
 
 WIDTH_PLAIN = 3        # history columns of a plain contact (the Mindlin force)
 WIDTH_CEMENTED = 9     # with cement: see the module docstring
@@ -278,236 +279,148 @@ def history_width(params):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def hertz_normal(r_star, m_star, delta, rate, e_star, gamma, damped):
+    """Hertz normal force of a contact of effective radius ``r_star`` [m] (``R*``; ``R`` on a plane)
+    and mass ``m_star`` [kg] at overlap ``delta > 0`` [m] closing at ``rate = d(delta)/dt`` [m/s]:
+    damped when ``damped`` (a compile-time constant), clipped at zero. Returns ``(fn [N], fn_el
+    [N] the elastic part, a [m] the contact radius)``."""
+    a = np.sqrt(r_star * delta)                  # contact radius sqrt(R* delta)
+    fn_el = 4.0 / 3.0 * e_star * a * delta       # Hertz
+    fn = fn_el
+    if damped:
+        fn += gamma * np.sqrt(m_star * 2.0 * e_star * a) * rate
+        if fn < 0.0:
+            fn = 0.0
+    return fn, fn_el, a
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def mindlin_stiffness(g_star, a):
+    """Mindlin no-slip tangential stiffness ``8 G* a`` [N/m] at contact radius ``a`` [m]."""
+    return 8.0 * g_star * a
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def hertz_mindlin_forces(p, i, j, ri, rj, rsum, delta, n0, n1, n2, un, ut0, ut1, ut2, spin, mass, hist,
                          dt, e_star, g_star, mu, gamma, damped):
     """The laws of a touching pair (overlap ``delta`` > 0 [m], normal ``n``, relative motion ``un``,
     ``ut``, ``spin`` of ``contact_frame``): Hertz normal force (damped when ``damped``, a
     compile-time constant), Mindlin tangential force with the Coulomb cap, ``hist[p]`` updated.
     Returns ``(fn [N], h0, h1, h2 [N], elastic energy [J])``."""
-    a = np.sqrt(ri * rj / rsum * delta)          # contact radius sqrt(R* delta)
-    fn_el = 4.0 / 3.0 * e_star * a * delta       # Hertz
-    fn = fn_el
-    if damped:
-        m_star = mass[i] * mass[j] / (mass[i] + mass[j])
-        fn += gamma * np.sqrt(m_star * 2.0 * e_star * a) * un
-        if fn < 0.0:
-            fn = 0.0
-    kt = 8.0 * g_star * a                        # Mindlin
+    m_star = mass[i] * mass[j] / (mass[i] + mass[j])     # dead code unless damped
+    fn, fn_el, a = hertz_normal(ri * rj / rsum, m_star, delta, un, e_star, gamma, damped)
+    kt = mindlin_stiffness(g_star, a)
     h0, h1, h2 = update_history(hist, p, n0, n1, n2, ut0, ut1, ut2, spin, dt, kt, mu * fn)
     return fn, h0, h1, h2, 0.4 * fn_el * delta + 0.5 * (h0 * h0 + h1 * h1 + h2 * h2) / kt
 
 
-@njit(cache=True, inline="always", error_model="numpy")
-def hertz_mindlin_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, hist, dt, e_star, g_star, mu,
-                       gamma, out, damped, deforming):
-    """Contact of rows i and j (image shift ``s`` [m] added to ``x_j``), history row ``hist[p]``.
-
-    ``g`` [1/s]: diagonal strain rate of a deforming periodic cell (velocities are then the
-    fluctuations about the affine field, see ``contact_frame.affine_motion``).
-
-    Writes ``out[9]`` = (F_i, T_i, T_j) and updates ``hist[p]`` when the spheres touch; clears
-    ``hist[p]`` otherwise. ``damped`` and ``deforming`` must be compile-time constants. Returns
-    ``(touching, elastic energy [J])``.
-    """
-    d0, d1, d2, dist2, ri, rj, rsum = pair_separation(i, j, s0, s1, s2, x, radius)
-    if dist2 >= rsum * rsum:
-        clear_history(hist, p)
-        return False, 0.0
-    n0, n1, n2, delta, li, lj = contact_geometry(d0, d1, d2, dist2, ri, rj, rsum)
-    un, ut0, ut1, ut2, spin = relative_motion(i, j, v, w, n0, n1, n2, li, lj)
-    if deforming:
-        un, ut0, ut1, ut2 = affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1, n2, g0, g1, g2)
-    fn, h0, h1, h2, energy = hertz_mindlin_forces(p, i, j, ri, rj, rsum, delta, n0, n1, n2, un, ut0,
-                                                  ut1, ut2, spin, mass, hist, dt, e_star, g_star,
-                                                  mu, gamma, damped)
-    write_pair(out, n0, n1, n2, fn, h0, h1, h2, li, lj)
-    return True, energy
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def hertz_mindlin_cemented_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, hist, dt,
-                                e_star, g_star, mu, gamma, sn, st, fade_step, out, damped,
-                                deforming):
-    """``hertz_mindlin_pair`` plus the cement of the pair (history row ``hist[p]`` of 9 columns).
-
-    sn, st [N/m]: cement springs; fade_step: decrease of the fading factor per step
-    (``dt / t_fade``, or > 1 to drop a broken cement on the next step). Returns ``(interacting,
-    elastic energy [J])``; ``interacting`` is True when the spheres touch or a cement acts.
-    """
-    state = hist[p, 8]
-    d0, d1, d2, dist2, ri, rj, rsum = pair_separation(i, j, s0, s1, s2, x, radius)
-    if state == 0.0 and dist2 >= rsum * rsum:
-        clear_history(hist, p)
-        return False, 0.0
-    n0, n1, n2, delta, li, lj = contact_geometry(d0, d1, d2, dist2, ri, rj, rsum)
-    un, ut0, ut1, ut2, spin = relative_motion(i, j, v, w, n0, n1, n2, li, lj)
-    if deforming:
-        un, ut0, ut1, ut2 = affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1, n2, g0, g1, g2)
-    fn = 0.0
-    h0 = h1 = h2 = 0.0
-    energy = 0.0
-    if delta > 0.0:      # the Hertz-Mindlin part, exactly the plain law
+def _plain_forces(damped):
+    """The ``pair_loop.forces`` of the plain law, ``c = (E*, G*, mu, gamma)``."""
+    @njit(cache=True, inline="always", error_model="numpy")
+    def forces(p, i, j, ri, rj, rsum, delta, n0, n1, n2, un, ut0, ut1, ut2, spin, mass, hist, dt, c):
+        e_star, g_star, mu, gamma = c
         fn, h0, h1, h2, energy = hertz_mindlin_forces(p, i, j, ri, rj, rsum, delta, n0, n1, n2, un,
                                                       ut0, ut1, ut2, spin, mass, hist, dt, e_star,
                                                       g_star, mu, gamma, damped)
-    else:
-        clear_history(hist, p)
-    if state != 0.0:     # the cement, intact (state > 0) or fading (state < 0)
-        c0, c1, c2 = carry_force(hist[p, 3], hist[p, 4], hist[p, 5], n0, n1, n2, spin * dt)
-        stretch = delta - hist[p, 6]
-        scale = 1.0
-        if state > 0.0:
-            k = st * dt
-            c0 -= k * ut0
-            c1 -= k * ut1
-            c2 -= k * ut2
-            e_c = 0.5 * sn * stretch * stretch
-            if st > 0.0:
-                e_c += 0.5 * (c0 * c0 + c1 * c1 + c2 * c2) / st
-            if e_c > hist[p, 7]:
-                hist[p, 8] = -1.0          # ruptured: full force this step, then fading
+        return True, fn, h0, h1, h2, energy
+    return forces
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def cemented_engaged(p, hist, dist2, rsum):
+    """A cemented pair is computed while it touches or holds a cement (intact or fading)."""
+    return hist[p, CEMENT_STATE] != 0.0 or dist2 < rsum * rsum
+
+
+def _cemented_forces(damped):
+    """The ``pair_loop.forces`` of the cemented law, ``c = (E*, G*, mu, gamma, Sn, St, fade_step)``
+    (``fade_step``: decrease of the fading factor per step, ``dt / t_fade``, or > 1 to drop a broken
+    cement on the next step); history of 9 columns (module docstring)."""
+    @njit(cache=True, inline="always", error_model="numpy")
+    def forces(p, i, j, ri, rj, rsum, delta, n0, n1, n2, un, ut0, ut1, ut2, spin, mass, hist, dt, c):
+        e_star, g_star, mu, gamma, sn, st, fade_step = c
+        state = hist[p, 8]
+        fn = 0.0
+        h0 = h1 = h2 = 0.0
+        energy = 0.0
+        if delta > 0.0:      # the Hertz-Mindlin part, exactly the plain law
+            fn, h0, h1, h2, energy = hertz_mindlin_forces(p, i, j, ri, rj, rsum, delta, n0, n1, n2,
+                                                          un, ut0, ut1, ut2, spin, mass, hist, dt,
+                                                          e_star, g_star, mu, gamma, damped)
         else:
-            scale = -state - fade_step
-            e_c = 0.0
-            if scale > 0.0:
-                hist[p, 8] = -scale
+            clear_history(hist, p)
+        if state != 0.0:     # the cement, intact (state > 0) or fading (state < 0)
+            c0, c1, c2 = carry_force(hist[p, 3], hist[p, 4], hist[p, 5], n0, n1, n2, spin * dt)
+            stretch = delta - hist[p, 6]
+            scale = 1.0
+            if state > 0.0:
+                k = st * dt
+                c0 -= k * ut0
+                c1 -= k * ut1
+                c2 -= k * ut2
+                e_c = 0.5 * sn * stretch * stretch
+                if st > 0.0:
+                    e_c += 0.5 * (c0 * c0 + c1 * c1 + c2 * c2) / st
+                if e_c > hist[p, 7]:
+                    hist[p, 8] = -1.0          # ruptured: full force this step, then fading
             else:
-                scale = 0.0
-                c0 = c1 = c2 = 0.0
-                for col in range(3, 9):
-                    hist[p, col] = 0.0
-        hist[p, 3] = c0
-        hist[p, 4] = c1
-        hist[p, 5] = c2
-        if scale == 0.0 and delta <= 0.0:
-            return False, energy
-        fn += scale * sn * stretch
-        h0 += scale * c0
-        h1 += scale * c1
-        h2 += scale * c2
-        energy += e_c
-    write_pair(out, n0, n1, n2, fn, h0, h1, h2, li, lj)
-    return True, energy
-
-
-def _pair_loop(damped, periodic, deforming, cemented=False, with_energy=True):
-    """Loop over a pair list; ``damped``, ``periodic`` (image shifts are read), ``deforming``
-    (the cell's strain rate is read), ``cemented`` (the 9-column history with cement terms;
-    ``cement = (Sn, St, fade_step)`` is read) and ``with_energy`` (the energy is summed; without
-    it the loop returns 0 and skips the energy's arithmetic, 8 % of the loop) are frozen as
-    compile-time constants."""
-    @njit(cache=True, error_model="numpy")
-    def loop(pi, pj, shift, rate, x, v, w, radius, mass, f, t, hist, dt, e_star, g_star, mu, gamma,
-             n_owned, acc, cement):
-        out = np.empty(9)
-        energy = 0.0
-        s0 = s1 = s2 = 0.0
-        g0 = g1 = g2 = 0.0
-        # Love-Weber sums in registers (an array accumulator would be stored every pair, since
-        # the compiler cannot prove it does not alias f and t)
-        a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
-        count = 0
-        if deforming:
-            g0, g1, g2 = rate[0], rate[1], rate[2]
-        sn = st = fade_step = 0.0
-        if cemented:
-            sn, st, fade_step = cement[0], cement[1], cement[2]
-        for p in range(pi.shape[0]):
-            i = pi[p]
-            j = pj[p]
-            if periodic:
-                s0 = shift[p, 0]
-                s1 = shift[p, 1]
-                s2 = shift[p, 2]
-            if cemented:
-                touching, e = hertz_mindlin_cemented_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w,
-                                                          radius, mass, hist, dt, e_star, g_star,
-                                                          mu, gamma, sn, st, fade_step, out,
-                                                          damped, deforming)
-            else:
-                touching, e = hertz_mindlin_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius,
-                                                 mass, hist, dt, e_star, g_star, mu, gamma, out,
-                                                 damped, deforming)
-            if touching:
-                scatter_pair(i, j, f, t, out)
-                if i < n_owned:   # counted once over the ranks (the owner of the lower gid)
-                    if with_energy:
-                        energy += e
-                    b0 = (x[j, 0] - x[i, 0]) + s0
-                    b1 = (x[j, 1] - x[i, 1]) + s1
-                    b2 = (x[j, 2] - x[i, 2]) + s2
-                    a00 += b0 * out[0]
-                    a01 += b0 * out[1]
-                    a02 += b0 * out[2]
-                    a10 += b1 * out[0]
-                    a11 += b1 * out[1]
-                    a12 += b1 * out[2]
-                    a20 += b2 * out[0]
-                    a21 += b2 * out[1]
-                    a22 += b2 * out[2]
-                    count += 1
-        add_love_weber(acc, a00, a01, a02, a10, a11, a12, a20, a21, a22, count)
-        return energy
-    return loop
-
-
-def _all_pairs_loop(damped):
-    """Brute-force O(n^2) loop over every pair ``i < j`` of all rows (test oracle)."""
-    @njit(cache=True, error_model="numpy")
-    def loop(x, v, w, radius, mass, f, t, hist_full, dt, e_star, g_star, mu, gamma):
-        out = np.empty(9)
-        energy = 0.0
-        n = x.shape[0]
-        for i in range(n):
-            hist_i = hist_full[i]
-            for j in range(i + 1, n):
-                touching, e = hertz_mindlin_pair(j, i, j, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, x, v, w,
-                                                 radius, mass, hist_i, dt, e_star, g_star, mu,
-                                                 gamma, out, damped, False)
-                if touching:
-                    scatter_pair(i, j, f, t, out)
-                    energy += e
-        return energy
-    return loop
+                scale = -state - fade_step
+                e_c = 0.0
+                if scale > 0.0:
+                    hist[p, 8] = -scale
+                else:
+                    scale = 0.0
+                    c0 = c1 = c2 = 0.0
+                    for col in range(3, 9):
+                        hist[p, col] = 0.0
+            hist[p, 3] = c0
+            hist[p, 4] = c1
+            hist[p, 5] = c2
+            if scale == 0.0 and delta <= 0.0:
+                return False, fn, h0, h1, h2, energy
+            fn += scale * sn * stretch
+            h0 += scale * c0
+            h1 += scale * c1
+            h2 += scale * c2
+            energy += e_c
+        return True, fn, h0, h1, h2, energy
+    return forces
 
 
 @lru_cache(maxsize=None)
-def pair_loop(damped, periodic, deforming=False, cemented=False, with_energy=True):
-    """The compiled pair-list kernel for one sub-model choice (built once per choice).
-
-    ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, e_star, g_star, mu, gamma,
-    n_owned, acc, cement)`` adds the pair forces and torques to ``f``, ``t`` (owned and ghost rows
-    alike), updates ``history`` [n_pairs, 3] (``cemented``: [n_pairs, 9]), adds the Love-Weber sums
-    of the pairs whose ``i`` is owned to ``acc`` [10] (``contact_frame.add_love_weber``) and
-    returns their elastic energy [J] (0 unless ``with_energy``). ``shift`` [n_pairs, 3] [m], the cell's diagonal strain rate
-    ``rate`` [3] [1/s] and ``cement`` [3] = (Sn [N/m], St [N/m], fade step) are read only when
-    ``periodic``, ``deforming`` and ``cemented`` respectively.
-    """
-    return _pair_loop(bool(damped), bool(periodic), bool(deforming), bool(cemented), bool(with_energy))
+def _law_function(damped, cemented):
+    if cemented:
+        return _cemented_forces(damped), cemented_engaged
+    return _plain_forces(damped), touching
 
 
-NO_CEMENT = np.zeros(3)
+def pair_function(params):
+    """``(forces, engaged)`` of ``pair_loop`` for these parameters (damping and cement chosen
+    here, compiled in only when used)."""
+    return _law_function(bool(params.damped), bool(params.cemented))
 
 
 def cement_constants(params, dt):
-    """``[Sn, St, fade_step]`` for the cemented kernel (``fade_step = dt / t_fade``, 2 for
+    """``(Sn, St, fade_step)`` of the cemented kernel (``fade_step = dt / t_fade``, 2 for
     ``t_fade = 0``: the cement is dropped on the step after rupture)."""
-    if not params.cemented:
-        return NO_CEMENT
     t_f = params.cement_fade_time
-    return np.array([params.cement_normal, params.cement_tangential,
-                     float(dt) / t_f if t_f > 0.0 else 2.0])
+    return (float(params.cement_normal), float(params.cement_tangential),
+            float(dt) / t_f if t_f > 0.0 else 2.0)
 
 
-@lru_cache(maxsize=None)
-def all_pairs_loop(damped):
-    """``loop(x, v, w, radius, mass, f, t, history_full, dt, e_star, g_star, mu, gamma)`` over all
-    row pairs, history ``[n, n, 3]`` indexed ``[i, j]`` with ``i < j`` (test oracle)."""
-    return _all_pairs_loop(bool(damped))
+def constants(params, dt):
+    """The ``c`` tuple of ``pair_function(params)``: ``(E*, G*, mu, gamma)`` [Pa, Pa, -, -], plus
+    ``cement_constants`` when cemented."""
+    p = params
+    c = (float(p.e_star), float(p.g_star), float(p.friction), float(p.gamma))
+    return c + cement_constants(p, dt) if p.cemented else c
+
+
+compute, compute_all_pairs, single = law_interface(pair_function, constants, history_width)
 
 
 # ---------------------------------------------------------------------------------------------
-# model interface (STYLE pattern 3)
+# the rest of the registry row (pardem.physics.contact_laws.ContactLaw)
 
 def cutoff(params, rmax):
     """Largest centre distance at which two spheres of radius <= ``rmax`` [m] interact [m]."""
@@ -520,80 +433,46 @@ def normal_stiffness(params):
     return 0.0, 2.0 * params.e_star
 
 
-def compute(params, elements, i, j, history, dt, shift=None, rate=None, acc=None, with_energy=True):
-    """Add the contact forces of the pairs ``(i[p], j[p])`` to ``elements.f``/``elements.t``.
-
-    i, j : [n_pairs] rows (ordered by gid within each pair); history : [n_pairs, 3] tangential force
-    on i [N] ([n_pairs, 9] with cement, module docstring), updated in place (zeroed for pairs not
-    in contact); dt [s] : step; shift : optional
-    [n_pairs, 3] periodic image shift added to ``x_j`` [m]; rate : optional diagonal strain rate [3]
-    [1/s] of the periodic cell (needs ``shift``); acc : optional [10] Love-Weber sums, added to.
-    Returns the elastic energy [J] of the pairs whose ``i`` is owned (NaN when not
-    ``with_energy``: the loop then does not compute it).
-    """
-    e, p = elements, params
-    if p.cemented:
-        if history.ndim != 2 or history.shape[1] != WIDTH_CEMENTED:
-            raise ValueError(f"cemented contacts need a history of {WIDTH_CEMENTED} columns, got "
-                             f"shape {history.shape}")
-        check_pairs(i, j, history[:, :3], shift)
-        cement = cement_constants(p, dt)
-    else:
-        check_pairs(i, j, history, shift)
-        cement = NO_CEMENT
-    loop = pair_loop(p.damped, shift is not None, rate is not None and bool(np.any(rate != 0.0)),
-                     p.cemented, with_energy)
-    energy = loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
-                  e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history, float(dt), p.e_star, p.g_star,
-                  p.friction, p.gamma, e.n_owned, np.zeros(10) if acc is None else acc, cement)
-    return energy if with_energy else float("nan")
+def cement_time_step(params, r_min, density):
+    """``1 / omega`` [s] of two spheres of radius ``r_min`` [m] joined by the stiffer cement spring
+    alone (``omega^2 = 2 k / m``): the cement's share of the critical step (well above the
+    Rayleigh step for cements softer than the Hertz contact)."""
+    m = density * 4.0 / 3.0 * np.pi * float(r_min) ** 3
+    k = max(params.cement_normal, params.cement_tangential)
+    return float(np.sqrt(m / (2.0 * k)))
 
 
-def compute_all_pairs(params, elements, history_full, dt):
-    """Brute-force version of ``compute`` over all row pairs, history ``[n, n, 3]`` (tests)."""
-    e, p = elements, params
-    if p.cemented:
-        raise ValueError("compute_all_pairs: the brute-force oracle has no cement terms")
-    return all_pairs_loop(p.damped)(e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history_full,
-                                    float(dt), p.e_star, p.g_star, p.friction, p.gamma)
+def critical_time_step(params, radii, density):
+    """Critical step [s] of spheres of radii ``radii`` [m] and ``density`` [kg/m^3]: the Rayleigh
+    step of the smallest (``timestep.rayleigh_time_step``), and the cement's when cemented."""
+    r_min = float(np.min(radii))
+    g = params.young / (2.0 * (1.0 + params.poisson))
+    dt_c = rayleigh_time_step(r_min, density, g, params.poisson)
+    if params.cemented:
+        dt_c = min(dt_c, cement_time_step(params, r_min, density))
+    return dt_c
 
 
-def single(params, elements, i, j, history_row, dt, shift=(0.0, 0.0, 0.0)):
-    """Diagnostics of one pair, nothing modified: dict with ``force_i``, ``torque_i``, ``torque_j``,
-    ``history`` (the value the step would store), ``energy`` and ``touching``."""
-    e, p = elements, params
-    hist = np.array(history_row, dtype=np.float64).reshape(1, history_width(p))
-    out = np.zeros(9)
-    s = np.asarray(shift, dtype=np.float64)
-    if p.cemented:
-        c = cement_constants(p, dt)
-        touching, energy = _single_cemented_kernel(i, j, s, e.x, e.v, e.w, e.radius, e.mass, hist,
-                                                   float(dt), p.e_star, p.g_star, p.friction,
-                                                   p.gamma, c[0], c[1], c[2], out, p.damped)
-    else:
-        touching, energy = _single_kernel(i, j, s, e.x, e.v, e.w, e.radius, e.mass, hist,
-                                          float(dt), p.e_star, p.g_star, p.friction, p.gamma, out,
-                                          p.damped)
-    return {"touching": bool(touching), "force_i": out[0:3].copy(), "torque_i": out[3:6].copy(),
-            "torque_j": out[6:9].copy(), "history": hist[0].copy(), "energy": float(energy)}
+def deck_params(section, auto):
+    """The ``Params`` dict of a deck's ``contacts`` section (``young``, ``poisson``, ``friction``,
+    ``restitution``); ``auto["young"]()`` [Pa] is called for ``young = "auto"``."""
+    young = auto["young"]() if section["young"] == "auto" else section["young"]
+    return {"young": young, "poisson": section["poisson"], "friction": section["friction"],
+            "restitution": section["restitution"]}
 
 
 @njit(cache=True, error_model="numpy")
-def _single_kernel(i, j, s, x, v, w, radius, mass, hist, dt, e_star, g_star, mu, gamma, out, damped):
-    if damped:
-        return hertz_mindlin_pair(0, i, j, s[0], s[1], s[2], 0.0, 0.0, 0.0, x, v, w, radius, mass,
-                                  hist, dt, e_star, g_star, mu, gamma, out, True, False)
-    return hertz_mindlin_pair(0, i, j, s[0], s[1], s[2], 0.0, 0.0, 0.0, x, v, w, radius, mass, hist,
-                              dt, e_star, g_star, mu, gamma, out, False, False)
+def _elastic_normal(ri, rj, delta, e_star, out):
+    for p in range(delta.shape[0]):
+        rsum = ri[p] + rj[p]
+        out[p] = hertz_normal(ri[p] * rj[p] / rsum, 0.0, delta[p], 0.0, e_star, 0.0, False)[1]
 
 
-@njit(cache=True, error_model="numpy")
-def _single_cemented_kernel(i, j, s, x, v, w, radius, mass, hist, dt, e_star, g_star, mu, gamma, sn,
-                            st, fade_step, out, damped):
-    if damped:
-        return hertz_mindlin_cemented_pair(0, i, j, s[0], s[1], s[2], 0.0, 0.0, 0.0, x, v, w,
-                                           radius, mass, hist, dt, e_star, g_star, mu, gamma, sn,
-                                           st, fade_step, out, True, False)
-    return hertz_mindlin_cemented_pair(0, i, j, s[0], s[1], s[2], 0.0, 0.0, 0.0, x, v, w, radius,
-                                       mass, hist, dt, e_star, g_star, mu, gamma, sn, st,
-                                       fade_step, out, False, False)
+def elastic_normal_force(params, r_i, r_j, delta):
+    """Elastic Hertz normal force [N] [n] of contacts of radii ``r_i``, ``r_j`` [m] [n] at overlaps
+    ``delta > 0`` [m] [n] (the kernel's value, damping excluded)."""
+    out = np.empty(len(delta))
+    _elastic_normal(np.ascontiguousarray(r_i, dtype=np.float64),
+                    np.ascontiguousarray(r_j, dtype=np.float64),
+                    np.ascontiguousarray(delta, dtype=np.float64), float(params.e_star), out)
+    return out

@@ -3,6 +3,8 @@
 Kinematics, sign conventions, the history carry and the output layout are those of
 ``pardem.physics.contact_frame`` (normal ``n`` from i to j, history ``h`` = elastic tangential force
 on i, ``u`` = velocity of i's contact point relative to j's, ``u . n = d(delta)/dt``).
+A row of ``pardem.physics.contact_laws``: the per-pair functions below (``pair_function``) run in
+the shared loops of ``pardem.physics.pair_loop``.
 
 Laws
 ----
@@ -47,10 +49,9 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, add_love_weber, affine_motion,
-                                          check_pairs, clear_history, contact_geometry, coulomb_cap,
-                                          pair_separation, relative_motion, scatter_pair,
-                                          update_history, write_pair)
+from pardem.physics.contact_frame import coulomb_cap, update_history
+from pardem.physics.pair_loop import law_interface, touching
+from pardem.physics.timestep import linear_contact_time_step
 
 
 def restitution(zeta):
@@ -133,128 +134,83 @@ class Params:
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def linear_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, hist, dt, kn, kt, mu, zeta_n, zeta_t,
-                out, damped, deforming):
-    """Contact of rows i and j (image shift ``s`` [m] added to ``x_j``), history row ``hist[p]``.
-
-    ``g`` [1/s]: diagonal strain rate of a deforming periodic cell (velocities are then the
-    fluctuations about the affine field, see ``contact_frame.affine_motion``).
-
-    Writes ``out[9]`` = (F_i, T_i, T_j) and updates ``hist[p]`` when the spheres touch; clears
-    ``hist[p]`` otherwise. ``damped`` and ``deforming`` must be compile-time constants. Returns
-    ``(touching, elastic energy [J])``.
-    """
-    d0, d1, d2, dist2, ri, rj, rsum = pair_separation(i, j, s0, s1, s2, x, radius)
-    if dist2 >= rsum * rsum:
-        clear_history(hist, p)
-        return False, 0.0
-    n0, n1, n2, delta, li, lj = contact_geometry(d0, d1, d2, dist2, ri, rj, rsum)
-    un, ut0, ut1, ut2, spin = relative_motion(i, j, v, w, n0, n1, n2, li, lj)
-    if deforming:
-        un, ut0, ut1, ut2 = affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1, n2, g0, g1, g2)
+def linear_normal(kn, m_star, delta, rate, zeta_n, damped):
+    """Normal force [N] of the spring-dashpot: ``kn delta`` plus, when ``damped`` (a compile-time
+    constant), ``2 zeta_n sqrt(kn m*) rate`` (``rate = d(delta)/dt`` [m/s], mass ``m_star`` [kg]),
+    clipped at zero."""
     fn = kn * delta
-    m_star = mass[i] * mass[j] / (mass[i] + mass[j])
     if damped:
-        fn += 2.0 * zeta_n * np.sqrt(kn * m_star) * un
+        fn += 2.0 * zeta_n * np.sqrt(kn * m_star) * rate
         if fn < 0.0:
             fn = 0.0
-    cap = mu * fn
+    return fn
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def linear_energy(kn, delta):
+    """Energy ``1/2 kn delta^2`` [J] of the normal spring ``kn`` [N/m] at overlap ``delta`` [m]."""
+    return 0.5 * kn * delta * delta
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def linear_tangential(hist, p, n0, n1, n2, ut0, ut1, ut2, spin, dt, kt, m_star, zeta_t, cap, damped):
+    """Tangential spring ``kt`` [N/m] on the history ``hist[p]`` (carried by ``spin * dt`` about
+    ``n``, Coulomb cap ``cap`` [N], ``contact_frame.update_history``) and, when ``damped``, the
+    dashpot ``-2 zeta_t sqrt(kt m*) u_t`` added and the sum capped again. Returns ``(h0, h1, h2,
+    f0, f1, f2)``: the stored spring force and the applied tangential force [N]."""
     h0, h1, h2 = update_history(hist, p, n0, n1, n2, ut0, ut1, ut2, spin, dt, kt, cap)
-    energy = 0.5 * kn * delta * delta + 0.5 * (h0 * h0 + h1 * h1 + h2 * h2) / kt
+    f0, f1, f2 = h0, h1, h2
     if damped:
         ct = 2.0 * zeta_t * np.sqrt(kt * m_star)
         f0, f1, f2 = coulomb_cap(h0 - ct * ut0, h1 - ct * ut1, h2 - ct * ut2, cap)
-        write_pair(out, n0, n1, n2, fn, f0, f1, f2, li, lj)
-    else:
-        write_pair(out, n0, n1, n2, fn, h0, h1, h2, li, lj)
-    return True, energy
+    return h0, h1, h2, f0, f1, f2
 
 
-def _pair_loop(damped, periodic, deforming, with_energy=True):
-    """Loop over a pair list; ``damped``, ``periodic`` (image shifts are read), ``deforming``
-    (the cell's strain rate is read) and ``with_energy`` (the energy is summed) are frozen as
-    compile-time constants."""
-    @njit(cache=True, error_model="numpy")
-    def loop(pi, pj, shift, rate, x, v, w, radius, mass, f, t, hist, dt, kn, kt, mu, zeta_n, zeta_t,
-             n_owned, acc):
-        out = np.empty(9)
-        energy = 0.0
-        s0 = s1 = s2 = 0.0
-        g0 = g1 = g2 = 0.0
-        # Love-Weber sums in registers (an array accumulator would be stored every pair, since
-        # the compiler cannot prove it does not alias f and t)
-        a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
-        count = 0
-        if deforming:
-            g0, g1, g2 = rate[0], rate[1], rate[2]
-        for p in range(pi.shape[0]):
-            i = pi[p]
-            j = pj[p]
-            if periodic:
-                s0 = shift[p, 0]
-                s1 = shift[p, 1]
-                s2 = shift[p, 2]
-            touching, e = linear_pair(p, i, j, s0, s1, s2, g0, g1, g2, x, v, w, radius, mass, hist,
-                                      dt, kn, kt, mu, zeta_n, zeta_t, out, damped, deforming)
-            if touching:
-                scatter_pair(i, j, f, t, out)
-                if i < n_owned:   # counted once over the ranks (the owner of the lower gid)
-                    if with_energy:
-                        energy += e
-                    b0 = (x[j, 0] - x[i, 0]) + s0
-                    b1 = (x[j, 1] - x[i, 1]) + s1
-                    b2 = (x[j, 2] - x[i, 2]) + s2
-                    a00 += b0 * out[0]
-                    a01 += b0 * out[1]
-                    a02 += b0 * out[2]
-                    a10 += b1 * out[0]
-                    a11 += b1 * out[1]
-                    a12 += b1 * out[2]
-                    a20 += b2 * out[0]
-                    a21 += b2 * out[1]
-                    a22 += b2 * out[2]
-                    count += 1
-        add_love_weber(acc, a00, a01, a02, a10, a11, a12, a20, a21, a22, count)
-        return energy
-    return loop
-
-
-def _all_pairs_loop(damped):
-    """Brute-force O(n^2) loop over every pair ``i < j`` of all rows (test oracle)."""
-    @njit(cache=True, error_model="numpy")
-    def loop(x, v, w, radius, mass, f, t, hist_full, dt, kn, kt, mu, zeta_n, zeta_t):
-        out = np.empty(9)
-        energy = 0.0
-        n = x.shape[0]
-        for i in range(n):
-            hist_i = hist_full[i]
-            for j in range(i + 1, n):
-                touching, e = linear_pair(j, i, j, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, x, v, w, radius,
-                                          mass, hist_i, dt, kn, kt, mu, zeta_n, zeta_t, out, damped,
-                                          False)
-                if touching:
-                    scatter_pair(i, j, f, t, out)
-                    energy += e
-        return energy
-    return loop
+def _forces(damped):
+    """The ``pair_loop.forces`` of the law, ``c = (kn, kt, mu, zeta_n, zeta_t)``."""
+    @njit(cache=True, inline="always", error_model="numpy")
+    def forces(p, i, j, ri, rj, rsum, delta, n0, n1, n2, un, ut0, ut1, ut2, spin, mass, hist, dt, c):
+        kn, kt, mu, zeta_n, zeta_t = c
+        m_star = mass[i] * mass[j] / (mass[i] + mass[j])
+        fn = linear_normal(kn, m_star, delta, un, zeta_n, damped)
+        h0, h1, h2, f0, f1, f2 = linear_tangential(hist, p, n0, n1, n2, ut0, ut1, ut2, spin, dt, kt,
+                                                   m_star, zeta_t, mu * fn, damped)
+        energy = linear_energy(kn, delta) + 0.5 * (h0 * h0 + h1 * h1 + h2 * h2) / kt
+        return True, fn, f0, f1, f2, energy
+    return forces
 
 
 @lru_cache(maxsize=None)
-def pair_loop(damped, periodic, deforming=False, with_energy=True):
-    """The compiled pair-list kernel for one sub-model choice (built once per choice).
-
-    ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, kn, kt, mu, zeta_n, zeta_t,
-    n_owned, acc)``: same contract as ``hertz_mindlin.pair_loop``.
-    """
-    return _pair_loop(bool(damped), bool(periodic), bool(deforming), bool(with_energy))
+def _law_function(damped):
+    return _forces(damped), touching
 
 
-@lru_cache(maxsize=None)
-def all_pairs_loop(damped):
-    """``loop(x, v, w, radius, mass, f, t, history_full, dt, kn, kt, mu, zeta_n, zeta_t)`` over all
-    row pairs, history ``[n, n, 3]`` indexed ``[i, j]`` with ``i < j`` (test oracle)."""
-    return _all_pairs_loop(bool(damped))
+def pair_function(params):
+    """``(forces, engaged)`` of ``pair_loop`` for these parameters (damping chosen here)."""
+    return _law_function(bool(params.damped))
 
+
+def constants(params, dt):
+    """The ``c`` tuple of ``pair_function(params)``: ``(kn, kt, mu, zeta_n, zeta_t)``."""
+    p = params
+    return (float(p.kn), float(p.kt), float(p.friction), float(p.zeta_n), float(p.zeta_t))
+
+
+def history_width(params):
+    """Columns of a pair's history row: 3 (the tangential spring force on i [N])."""
+    return 3
+
+
+def persistent_rows(history):
+    """Mask of the history rows a list rebuild must not drop: none (no cohesion)."""
+    return np.zeros(len(history), dtype=bool)
+
+
+compute, compute_all_pairs, single = law_interface(pair_function, constants, history_width)
+
+
+# ---------------------------------------------------------------------------------------------
+# the rest of the registry row (pardem.physics.contact_laws.ContactLaw)
 
 def cutoff(params, rmax):
     """Largest centre distance at which two spheres of radius <= ``rmax`` [m] interact [m]."""
@@ -266,46 +222,30 @@ def normal_stiffness(params):
     return float(params.kn), 0.0
 
 
-def compute(params, elements, i, j, history, dt, shift=None, rate=None, acc=None, with_energy=True):
-    """Add the contact forces of the pairs ``(i[p], j[p])`` to ``elements.f``/``elements.t``.
-
-    Same arguments as ``hertz_mindlin.compute``. Returns the elastic energy [J] (NaN when not
-    ``with_energy``).
-    """
-    check_pairs(i, j, history, shift)
-    e, p = elements, params
-    loop = pair_loop(p.damped, shift is not None, rate is not None and bool(np.any(rate != 0.0)),
-                     with_energy)
-    energy = loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
-                  e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history, float(dt), p.kn, p.kt,
-                  p.friction, p.zeta_n, p.zeta_t, e.n_owned, np.zeros(10) if acc is None else acc)
-    return energy if with_energy else float("nan")
+def critical_time_step(params, radii, density):
+    """Critical step [s] of spheres of radii ``radii`` [m] and ``density`` [kg/m^3]: the pair of
+    the smallest mass (``timestep.linear_contact_time_step``)."""
+    r_min = float(np.min(radii))
+    m_min = density * 4.0 / 3.0 * np.pi * r_min**3
+    return linear_contact_time_step(m_min, params.kn, params.zeta_n)
 
 
-def compute_all_pairs(params, elements, history_full, dt):
-    """Brute-force version of ``compute`` over all row pairs, history ``[n, n, 3]`` (tests)."""
-    e, p = elements, params
-    return all_pairs_loop(p.damped)(e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history_full,
-                                    float(dt), p.kn, p.kt, p.friction, p.zeta_n, p.zeta_t)
-
-
-def single(params, elements, i, j, history_row, dt, shift=(0.0, 0.0, 0.0)):
-    """Diagnostics of one pair, nothing modified: dict with ``force_i``, ``torque_i``, ``torque_j``,
-    ``history`` (the value the step would store), ``energy`` and ``touching``."""
-    e, p = elements, params
-    hist = np.array(history_row, dtype=np.float64).reshape(1, 3)
-    out = np.zeros(9)
-    s = np.asarray(shift, dtype=np.float64)
-    touching, energy = _single_kernel(i, j, s, e.x, e.v, e.w, e.radius, e.mass, hist, float(dt),
-                                      p.kn, p.kt, p.friction, p.zeta_n, p.zeta_t, out, p.damped)
-    return {"touching": bool(touching), "force_i": out[0:3].copy(), "torque_i": out[3:6].copy(),
-            "torque_j": out[6:9].copy(), "history": hist[0].copy(), "energy": float(energy)}
+def deck_params(section, auto):
+    """The ``Params`` dict of a deck's ``contacts`` section (``kn = kt = stiffness``, ``friction``,
+    ``restitution``); ``auto["stiffness"]()`` [N/m] is called for ``stiffness = "auto"``."""
+    k = auto["stiffness"]() if section["stiffness"] == "auto" else section["stiffness"]
+    return {"kn": k, "kt": k, "friction": section["friction"], "restitution": section["restitution"]}
 
 
 @njit(cache=True, error_model="numpy")
-def _single_kernel(i, j, s, x, v, w, radius, mass, hist, dt, kn, kt, mu, zeta_n, zeta_t, out, damped):
-    if damped:
-        return linear_pair(0, i, j, s[0], s[1], s[2], 0.0, 0.0, 0.0, x, v, w, radius, mass, hist,
-                           dt, kn, kt, mu, zeta_n, zeta_t, out, True, False)
-    return linear_pair(0, i, j, s[0], s[1], s[2], 0.0, 0.0, 0.0, x, v, w, radius, mass, hist, dt,
-                       kn, kt, mu, zeta_n, zeta_t, out, False, False)
+def _elastic_normal(delta, kn, out):
+    for p in range(delta.shape[0]):
+        out[p] = linear_normal(kn, 0.0, delta[p], 0.0, 0.0, False)
+
+
+def elastic_normal_force(params, r_i, r_j, delta):
+    """Elastic normal force ``kn delta`` [N] [n] of contacts at overlaps ``delta > 0`` [m] [n]
+    (radii ``r_i``, ``r_j`` unused, for the common interface)."""
+    out = np.empty(len(delta))
+    _elastic_normal(np.ascontiguousarray(delta, dtype=np.float64), float(params.kn), out)
+    return out

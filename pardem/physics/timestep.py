@@ -16,6 +16,8 @@ when elements have many bonds.
 import numpy as np
 from numba import njit
 
+from pardem.physics.contact_frame import overlap, pair_separation
+
 
 @njit(cache=True, error_model="numpy")
 def eigen_bound(bi, bj, L0, ka, kb, kt, mass, inertia, n_owned, plate_k_per_mass):
@@ -63,22 +65,17 @@ def contact_stiffness(pi, pj, shift, periodic, x, radius, mass, n_owned, k_const
     """
     lam = np.zeros(x.shape[0])
     kd2 = 0.0
+    s0 = s1 = s2 = 0.0
     for p in range(pi.shape[0]):
         i = pi[p]
         j = pj[p]
-        d0 = x[j, 0] - x[i, 0]
-        d1 = x[j, 1] - x[i, 1]
-        d2 = x[j, 2] - x[i, 2]
         if periodic:
-            d0 += shift[p, 0]
-            d1 += shift[p, 1]
-            d2 += shift[p, 2]
-        rsum = radius[i] + radius[j]
-        dist2 = d0 * d0 + d1 * d1 + d2 * d2
+            s0, s1, s2 = shift[p, 0], shift[p, 1], shift[p, 2]
+        _, _, _, dist2, ri, rj, rsum = pair_separation(i, j, s0, s1, s2, x, radius)
         if dist2 >= rsum * rsum:
             continue
-        delta = rsum - np.sqrt(dist2)
-        k = k_constant + k_hertz * np.sqrt(radius[i] * radius[j] / rsum * delta)
+        delta = overlap(dist2, rsum)[1]
+        k = k_constant + k_hertz * np.sqrt(ri * rj / rsum * delta)
         cross = k / np.sqrt(mass[i] * mass[j])
         lam[i] += k / mass[i] + cross
         lam[j] += k / mass[j] + cross

@@ -21,6 +21,10 @@ relative to the wall ``u = v_k - V_w - l w_k x n``; ``d(delta)/dt = -u . n``; sl
 
 Laws (``Params.law``)
 ---------------------
+The pair laws' own functions with the wall a sphere of infinite radius and mass (``R* = R``,
+``m* = m``): ``linear_contact.linear_normal`` / ``linear_tangential`` and
+``hertz_mindlin.hertz_normal`` / ``mindlin_stiffness``, with ``contact_frame.update_history``.
+
 * ``"linear"``: ``fn = kn delta + cn d(delta)/dt``, ``cn = 2 zeta_n sqrt(kn m)``; tangential spring
   ``kt`` and dashpot ``ct = 2 zeta_t sqrt(kt m)`` exactly as ``linear_contact`` (the dashpot force
   ``-ct u_t`` is added to the stored spring force, the sum capped at ``mu fn``).
@@ -69,9 +73,10 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from pardem.physics.contact_frame import coulomb_cap, update_history
-from pardem.physics.hertz_mindlin import effective_moduli, hertz_damping_coefficient
-from pardem.physics.linear_contact import damping_ratio
+from pardem.physics.contact_frame import update_history
+from pardem.physics.hertz_mindlin import (effective_moduli, hertz_damping_coefficient, hertz_normal,
+                                          mindlin_stiffness)
+from pardem.physics.linear_contact import damping_ratio, linear_normal, linear_tangential
 
 LAWS = ("linear", "hertz")
 
@@ -162,52 +167,47 @@ def wall_contact(k, wl, delta, n0, n1, n2, v, w, radius, mass, velocities, hist,
     ``friction``) and returns the elastic energy [J].
     """
     r = radius[k]
-    if hertz:
-        a = np.sqrt(r * delta)                     # contact radius, R* = R on a plane
-        fn_el = 4.0 / 3.0 * stiff_n * a * delta
-        energy = 0.4 * fn_el * delta
-    else:
-        fn_el = stiff_n * delta
-        energy = 0.5 * fn_el * delta
-    fn = fn_el
     arm = r - 0.5 * delta                        # centre to contact point
+    un = u0 = u1 = u2 = 0.0
     if damped or friction:
         # u = v - V_wall - arm w x n
         u0 = v[k, 0] - velocities[wl, 0] - arm * (w[k, 1] * n2 - w[k, 2] * n1)
         u1 = v[k, 1] - velocities[wl, 1] - arm * (w[k, 2] * n0 - w[k, 0] * n2)
         u2 = v[k, 2] - velocities[wl, 2] - arm * (w[k, 0] * n1 - w[k, 1] * n0)
         un = u0 * n0 + u1 * n1 + u2 * n2          # = -d(delta)/dt
-    if damped:
-        if hertz:
-            fn -= damp_n * np.sqrt(mass[k] * 2.0 * stiff_n * a) * un
-        else:
-            fn -= 2.0 * damp_n * np.sqrt(stiff_n * mass[k]) * un
-        if fn < 0.0:
-            fn = 0.0
+    # the pair laws with the wall a sphere of infinite radius and mass: R* = R, m* = m
+    if hertz:
+        fn, fn_el, a = hertz_normal(r, mass[k], delta, -un, stiff_n, damp_n, damped)
+        energy = 0.4 * fn_el * delta
+    else:
+        fn = linear_normal(stiff_n, mass[k], delta, -un, damp_n, damped)
+        energy = 0.5 * (stiff_n * delta) * delta
     f0 = fn * n0
     f1 = fn * n1
     f2 = fn * n2
     t0 = t1 = t2 = 0.0
     if friction:
+        cap = mu * fn
+        ut0 = u0 - un * n0
+        ut1 = u1 - un * n1
+        ut2 = u2 - un * n2
+        # zero spin: the history lives in the frame of the wall, which does not rotate
         if hertz:
-            kt = 8.0 * stiff_t * a                 # Mindlin
+            kt = mindlin_stiffness(stiff_t, a)
+            h0, h1, h2 = update_history(hist[k], wl, n0, n1, n2, ut0, ut1, ut2, 0.0, dt, kt, cap)
+            g0, g1, g2 = h0, h1, h2
         else:
             kt = stiff_t
-        cap = mu * fn
-        h0, h1, h2 = update_history(hist[k], wl, n0, n1, n2, u0 - un * n0, u1 - un * n1,
-                                    u2 - un * n2, 0.0, dt, kt, cap)
+            h0, h1, h2, g0, g1, g2 = linear_tangential(hist[k], wl, n0, n1, n2, ut0, ut1, ut2, 0.0,
+                                                       dt, kt, mass[k], damp_t, cap, damped)
         energy += 0.5 * (h0 * h0 + h1 * h1 + h2 * h2) / kt
-        if damped and not hertz:
-            ct = 2.0 * damp_t * np.sqrt(kt * mass[k])
-            h0, h1, h2 = coulomb_cap(h0 - ct * (u0 - un * n0), h1 - ct * (u1 - un * n1),
-                                     h2 - ct * (u2 - un * n2), cap)
-        f0 += h0
-        f1 += h1
-        f2 += h2
+        f0 += g0
+        f1 += g1
+        f2 += g2
         # torque (x_c - x) x F = -arm n x ft
-        t0 = -arm * (n1 * h2 - n2 * h1)
-        t1 = -arm * (n2 * h0 - n0 * h2)
-        t2 = -arm * (n0 * h1 - n1 * h0)
+        t0 = -arm * (n1 * g2 - n2 * g1)
+        t1 = -arm * (n2 * g0 - n0 * g2)
+        t2 = -arm * (n0 * g1 - n1 * g0)
     out[0] = f0
     out[1] = f1
     out[2] = f2
