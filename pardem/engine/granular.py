@@ -24,12 +24,9 @@ from pardem.io.checkpoint import CONTACT_DATASETS, ELEMENT_DATASETS
 from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs
 from pardem.engine.periodic_cell import PeriodicCell
-from pardem.physics import hertz_mindlin, linear_contact
-from pardem.physics.timestep import linear_contact_time_step, rayleigh_time_step
+from pardem.physics.contact_laws import LAWS, critical_time_step, law_params
 from pardem.engine.simulation import Simulation
 from pardem.engine.state import Bonds, Elements
-
-LAWS = {"hertz_mindlin": hertz_mindlin, "linear": linear_contact}
 
 
 def simple_cubic(n, radius, spacing=1.998, jitter=0.0002, seed=12345):
@@ -49,35 +46,6 @@ class GranularCase:
     """A granular simulation on this rank and the constants needed to restart it."""
     sim: Simulation
     constants: dict = field(default_factory=dict)
-
-
-def law_params(law, params):
-    """The ``Params`` of ``law`` ("hertz_mindlin" or "linear") from a dict (checked there)."""
-    if law not in LAWS:
-        raise ValueError(f"contact law {law!r}: expected one of {', '.join(LAWS)}")
-    return LAWS[law].Params(**params)
-
-
-def critical_time_step(law, params, radii, density):
-    """The contact law's critical step [s] for these spheres (``pardem.physics.timestep``)."""
-    r_min = float(np.min(radii))
-    if law == "hertz_mindlin":
-        g = params.young / (2.0 * (1.0 + params.poisson))
-        dt_c = rayleigh_time_step(r_min, density, g, params.poisson)
-        if getattr(params, "cemented", False):
-            dt_c = min(dt_c, cement_time_step(params, r_min, density))
-        return dt_c
-    m_min = density * 4.0 / 3.0 * np.pi * r_min**3
-    return linear_contact_time_step(m_min, params.kn, params.zeta_n)
-
-
-def cement_time_step(params, r_min, density):
-    """``1 / omega`` [s] of two spheres of radius ``r_min`` [m] joined by the stiffer cement spring
-    alone (``omega^2 = 2 k / m``): the cement's share of the critical step (well above the
-    Rayleigh step for cements softer than the Hertz contact)."""
-    m = density * 4.0 / 3.0 * np.pi * float(r_min) ** 3
-    k = max(params.cement_normal, params.cement_tangential)
-    return float(np.sqrt(m / (2.0 * k)))
 
 
 def set_contact_params(case, params):

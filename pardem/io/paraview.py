@@ -53,6 +53,7 @@ import meshio
 import numpy as np
 
 from pardem.engine.state import BOND_INTACT
+from pardem.physics.beam_axial import elastic_axial_force
 
 PVD_NAME = "pardem.pvd"
 
@@ -102,11 +103,10 @@ def piece_mesh(elements, bonds, rank):
         "gid": e.gid[rows],
         "vtkGhostType": ghost_type,
     }
-    L = np.linalg.norm(e.x[bj] - e.x[bi], axis=1)
     state = b.state[once]
+    axial = elastic_axial_force(bi, bj, e.x, b.L0[once], b.ka[once], b.plastic[once])
     cell_data = {
-        "axial_force": np.where(state == BOND_INTACT,
-                                b.ka[once] * (L - b.L0[once] * (1.0 - b.plastic[once])), 0.0),
+        "axial_force": np.where(state == BOND_INTACT, axial, 0.0),
         "state": state,
         "plastic": b.plastic[once],
         "young": b.young[once],

@@ -75,6 +75,7 @@ import numpy as np
 from pardem.engine import granular
 from pardem.config import DeckError, Field, auto_or, boolean, choice, number, number_list, positive
 from pardem.physics import hertz_mindlin
+from pardem.physics.contact_frame import pair_geometry
 from pardem.engine.reducer import granular_measures
 from pardem.engine.relaxation import Fire
 from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit
@@ -244,16 +245,11 @@ def contact_forces(sim):
     ``gid_j`` [n_c], ``fn`` [n_c] elastic Hertz normal force [N], ``force`` [n_c, 3] force on i [N],
     ``branch`` [n_c, 3] [m], ``delta`` [n_c] overlap [m], ``dist`` [n_c] centre distance [m]."""
     e, c = sim.elements, sim.contacts
-    d = e.x[c.j] - e.x[c.i]
-    if c.shift is not None:
-        d = d + c.shift
-    dist = np.sqrt(np.einsum("ij,ij->i", d, d))
-    ri, rj = e.radius[c.i], e.radius[c.j]
-    delta = ri + rj - dist
+    d, n, dist, delta = pair_geometry(c.i, c.j, c.shift, e.x, e.radius)   # the kernels' geometry
     keep = (delta > 0.0) & c.counted_once(e.n_owned)
-    d, dist, delta, ri, rj = d[keep], dist[keep], delta[keep], ri[keep], rj[keep]
-    fn = 4.0 / 3.0 * c.params.e_star * np.sqrt(ri * rj / (ri + rj)) * delta**1.5
-    force = -fn[:, None] * d / dist[:, None] + c.history[keep]
+    d, n, dist, delta = d[keep], n[keep], dist[keep], delta[keep]
+    fn = c.law.elastic_normal_force(c.params, e.radius[c.i[keep]], e.radius[c.j[keep]], delta)
+    force = c.history[keep, :3] - fn[:, None] * n        # F_i = ft - fn n (contact_frame)
     return {"gid_i": e.gid[c.i[keep]], "gid_j": e.gid[c.j[keep]], "fn": fn, "force": force,
             "branch": d, "delta": delta, "dist": dist}
 
