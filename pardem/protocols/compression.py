@@ -16,9 +16,9 @@ from pardem.io.checkpoint import BOND_DATASETS, CONTACT_DATASETS, ELEMENT_DATASE
 from pardem.domains import compact
 from pardem.engine.contacts import Contacts, pair_keys
 from pardem.domains.ordered import ordered_lattice
-from pardem.engine.granular import LAWS as CONTACT_LAWS
-from pardem.engine.granular import critical_time_step as contact_critical_time_step
-from pardem.engine.granular import law_params
+from pardem.physics.contact_laws import LAWS as CONTACT_LAWS
+from pardem.physics.contact_laws import critical_time_step as contact_critical_time_step
+from pardem.physics.contact_laws import law_params
 from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs, choose_axis
 from pardem.physics import walls
@@ -202,14 +202,12 @@ def _contact_law(comm, deck, bonds, elements, material):
     law = ct["law"]
     if law == "auto":
         law = "hertz_mindlin" if material.breakable else "none"
-    common = {"friction": ct["friction"], "restitution": ct["restitution"]}
-    if law == "hertz_mindlin":
-        young = comm.max(float(bonds.young.max()) if bonds.n else 0.0) if ct["young"] == "auto" else ct["young"]
-        return law, {"young": young, "poisson": ct["poisson"], **common}
-    if law == "linear":
-        k = _global_mean_axial_stiffness(comm, bonds, elements) if ct["stiffness"] == "auto" else ct["stiffness"]
-        return law, {"kn": k, "kt": k, **common}
-    return "none", {}
+    if law not in CONTACT_LAWS:
+        return "none", {}
+    # the deck's "auto" values, computed (collectively) only when the law asks for them
+    auto = {"young": lambda: comm.max(float(bonds.young.max()) if bonds.n else 0.0),
+            "stiffness": lambda: _global_mean_axial_stiffness(comm, bonds, elements)}
+    return law, CONTACT_LAWS[law].deck_params(ct, auto)
 
 
 def _contacts(law, params, skin, reach):
