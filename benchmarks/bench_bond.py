@@ -37,13 +37,13 @@ def time_case(comm, deck, warmup, steps):
     comm_s = comm.comm.allgather((sim.domain.seconds_communicating if sim.domain else 0.0) - m0)
     mem = comm.sum(sim.elements.nbytes() + sim.bonds.nbytes())
     return {
-        "elements": case.n_elements, "bonds": case.n_bonds, "ranks": comm.size, "steps": steps,
-        "dt": DT, "dt_critical": case.dt_critical, "seconds": wall, "seconds_per_step": wall / steps,
-        "element_steps_per_second": case.n_elements * steps / wall,
-        "element_steps_per_second_per_rank": case.n_elements * steps / wall / comm.size,
+        "elements": case.constants.n_elements, "bonds": case.constants.n_bonds, "ranks": comm.size, "steps": steps,
+        "dt": DT, "dt_critical": case.constants.dt_critical, "seconds": wall, "seconds_per_step": wall / steps,
+        "element_steps_per_second": case.constants.n_elements * steps / wall,
+        "element_steps_per_second_per_rank": case.constants.n_elements * steps / wall / comm.size,
         "seconds_computing_per_rank": comp, "seconds_communicating_per_rank": comm_s,
-        "bytes_per_element": float(mem) / case.n_elements,
-        "slab_axis": "xyz"[case.slab_axis],
+        "bytes_per_element": float(mem) / case.constants.n_elements,
+        "slab_axis": "xyz"[case.constants.slab_axis],
     }
 
 

@@ -4,7 +4,8 @@ Simple cubic lattice of touching spheres, R = 0.25 mm, density 1000 kg/m^3, beam
 bond radius = R, Poisson 0.3, no damping; frictionless plates normal to x, fixed at x_min, moving at
 -0.05 m/s at x_max (no ramp); dt = 1e-7 s.
 """
-from pardem.config import COMPRESS_SCHEMA, check_deck
+from pardem.config import check_deck
+from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 
 R = 0.25e-3
 DT = 1e-7

@@ -101,6 +101,7 @@ def choice(*options, case_sensitive=False):
                 if v == o or (not case_sensitive and v.lower() == o.lower()):
                     return o
         raise DeckError(f"{name} = {v!r}: expected one of {', '.join(repr(o) for o in options)}")
+    check.options = tuple(options)   # listed by ``describe`` (--help)
     return check
 
 
@@ -114,6 +115,8 @@ def word_or(word, inner, meaning=""):
             return inner(name, v)
         except DeckError as err:
             raise DeckError(f"{err} or \"{word}\"{f' ({meaning})' if meaning else ''}") from None
+    if hasattr(inner, "options"):
+        check.options = (word,) + tuple(inner.options)
     return check
 
 
@@ -159,148 +162,24 @@ def boolean(name, v):
     return v
 
 
-# The compress driver's deck. Defaults are the issue's default case (docs/physics.md W study cube).
-COMPRESS_SCHEMA = {
-    "domain": {
-        "kind": Field("ordered", choice("ordered", "compact"),
-                      "domain builder: ordered (cubic lattice, face bonds) or compact (dense random "
-                      "packing, solid fraction >= 0.63, bonds within bond_gap)"),
-        "box": Field([0.01, 0.01, 0.01], triple(positive()), "box edge lengths [m]"),
-        "radius": Field(0.2381e-3, positive(),
-                        "element radius [m]; compact: the requested mean radius (the packing ends "
-                        "within about 1 % of it)"),
-        "density": Field(1000.0, positive(),
-                         "element density rho_e [kg/m^3], used as given for both kinds; the represented "
-                         "continuum's density is rho_e times the solid fraction (pi/6 ordered, 0.63-0.64 "
-                         "compact), docs/physics.md section 1"),
-        "tilt_deg": Field(0.0, number(-90.0, 90.0, lo_open=False, hi_open=False),
-                          "tilt of the LRT frame about T (z) [deg]; ordered: the lattice turns with it"),
-        "seed": Field(0, number(lo=0, lo_open=False, integer=True),
-                      "compact: seed of the random packing (the same seed gives the same packing)"),
-        "dispersity": Field(0.1, number(0.0, 0.5, lo_open=False),
-                            "compact: radii uniform in radius * (1 - dispersity, 1 + dispersity)"),
-        "bond_gap": Field(0.01, number(0.0, 0.5, lo_open=False, hi_open=False),
-                          "compact: bond the pairs whose surface gap is below bond_gap * mean radius"),
-    },
-    "bonds": {
-        "young": Field(100e6, number_or_triple(positive()), "bond Young's modulus, or [E_L, E_R, E_T] [Pa]"),
-        "law": Field("TOR", choice("TOR", "hankinson", "linear", "spherical"), "anisotropy law"),
-        "radius_ratio": Field(1.0, number_or_triple(positive()),
-                              "bond radius / mean element radius, or [r_L, r_R, r_T]"),
-        "poisson": Field(0.3, number(-1.0, 0.5), "bond Poisson ratio"),
-        "damping": Field(0.2, number(0.0, 1.0, lo_open=False, hi_open=False), "bond damping ratio"),
-        "tensile_strength": Field(0.0, strength(),
-                                  "bond tensile strength sigma_max = F / S [Pa], or [L, R, T] (all > 0, "
-                                  "by the anisotropy law); 0 = unbreakable in tension"),
-        "shear_strength": Field(0.0, strength(),
-                                "bond shear strength tau_max = |T| / S [Pa], or [L, R, T] (all > 0); "
-                                "0 = unbreakable in shear"),
-        "densification_stress": Field(0.0, number(lo=0.0, lo_open=False),
-                                      "densification threshold sigma0 [Pa] of the bonds initially along "
-                                      "T, in compression (docs/physics.md section 7); 0 = elastic"),
-        "densification_p0": Field(0.05, positive(),
-                                  "densification factor p0: the threshold grows as exp(p / p0) with "
-                                  "the plastic strain p"),
-    },
-    "contacts": {
-        "law": Field("auto", choice("auto", "none", "hertz_mindlin", "linear"),
-                     "element-element contacts (pairs not joined by an intact bond); auto = "
-                     "hertz_mindlin when bonds can break, none otherwise"),
-        "young": Field("auto", auto_or(positive()),
-                       "hertz_mindlin: Young's modulus of the elements [Pa]; auto = the largest bond modulus"),
-        "poisson": Field(0.3, number(-1.0, 0.5), "hertz_mindlin: Poisson ratio of the elements"),
-        "stiffness": Field("auto", auto_or(positive()),
-                           "linear: kn = kt [N/m]; auto = the mean axial bond stiffness"),
-        "friction": Field(0.3, number(lo=0.0, lo_open=False), "Coulomb friction coefficient"),
-        "restitution": Field(1.0, number(0.0, 1.0, hi_open=False),
-                             "normal restitution coefficient of contacts; 1 = undamped"),
-    },
-    "plates": {
-        "law": Field("linear", choice("linear", "hertz"),
-                     "element-wall normal law of the plates and lateral walls"),
-        "stiffness": Field("auto", auto_or(positive()),
-                           "linear law: element-wall stiffness kn = kt [N/m]; auto = mean axial bond stiffness"),
-        "young": Field("auto", auto_or(positive()),
-                       "hertz law: Young's modulus of the elements against the rigid walls [Pa]; "
-                       "auto = the largest bond modulus"),
-        "poisson": Field(0.3, number(-1.0, 0.5), "hertz law: Poisson ratio of the elements"),
-        "friction": Field(0.0, number(lo=0.0, lo_open=False),
-                          "Coulomb friction coefficient of the walls; 0 = frictionless (no history)"),
-        "restitution": Field(1.0, number(0.0, 1.0, hi_open=False),
-                             "normal restitution coefficient of element-wall impacts; 1 = undamped"),
-        "lateral_walls": Field(False, boolean,
-                               "fixed walls on the four faces across the load (at the outer element "
-                               "surfaces): a laterally confined test"),
-    },
-    "loading": {
-        "axis": Field("x", choice("x", "y", "z"), "loading axis"),
-        "strain": Field(0.005, number(0.0, 0.5), "nominal strain imposed by the moving plate"),
-        "plate_speed": Field(0.5, positive(), "moving plate speed [m/s]"),
-        "ramp_time": Field("auto", auto_or(number(lo=0.0, lo_open=False)),
-                           "time [s] over which the plate speed rises smoothly from 0; auto = 4 L / c "
-                           "(two periods of the slowest axial mode, c from the bonds along the "
-                           "axis), at most the time to cover half the travel"),
-    },
-    "run": {
-        "dt": Field("auto", auto_or(positive()), "time step [s], or auto = dt_fraction * critical step"),
-        "dt_fraction": Field(0.5, number(0.0, 1.0, hi_open=False), "fraction of the critical step when dt = auto"),
-        "progress_seconds": Field(5.0, positive(), "seconds between progress lines (rank 0)"),
-    },
-    "parallel": {
-        "slab_axis": Field("auto", choice("auto", "x", "y", "z"),
-                           "axis the slabs are stacked along; auto = longest extent, not the loading axis"),
-        "skin": Field("auto", auto_or(positive()),
-                      "displacement budget between ghost rebuilds [m]; auto = 0.2 R"),
-        "balance_every": Field(200, number(lo=0, lo_open=False, integer=True),
-                               "steps between load-balance checks; 0 = never"),
-        "balance_threshold": Field(0.05, number(0.0, 1.0), "re-cut slabs when per-rank loads differ by more (max/min - 1)"),
-        "balance_by": Field("count", choice("count", "time"), "load measure: owned elements or computing seconds"),
-        "initial_split": Field("balanced", fractions_or("balanced"),
-                               "initial cuts: balanced, or cumulative element fractions (one per cut)"),
-    },
-    "checkpoint": {
-        "every_steps": Field(0, number(lo=0, lo_open=False, integer=True), "steps between checkpoints; 0 = off"),
-        "every_seconds": Field(1800.0, number(lo=0.0, lo_open=False),
-                               "wall seconds between checkpoints; 0 = off"),
-        "keep": Field(3, number(lo=1, lo_open=False, integer=True), "how many checkpoints to keep"),
-        "at_end": Field(True, boolean, "write a checkpoint when the run ends"),
-        "driver": Field("auto", choice("auto", "mpio", "serial"),
-                        "HDF5 writing: collective MPI-IO, ranks taking turns, or auto"),
-    },
-    "output": {
-        "series_every": Field(0, optional(number(lo=0, integer=True)),
-                              "steps between series samples; 0 = about 200 samples per run"),
-        "vtk_every": Field(0, number(lo=0, lo_open=False, integer=True),
-                           "steps between ParaView snapshots (DIR/paraview/pardem.pvd); 0 = none"),
-    },
-}
-
-
-# Keys a restart may change: run length, output and parallel settings. Any other difference
-# would change the physics of the continued run, and the restart is refused.
-RESTART_MAY_CHANGE = {"loading.strain", "run.progress_seconds"}
-RESTART_MAY_CHANGE_SECTIONS = {"output", "checkpoint", "parallel"}
-
-
-def physics_differences(old, new):
-    """Keys (``section.key``) whose values differ between two checked decks and may not on restart."""
+def restart_differences(schema, old, new, may_change=(), may_change_sections=()):
+    """Keys (``section.key``, old, new) whose values differ between two checked decks of ``schema``
+    and that a restart may not change: every key outside ``may_change`` (``section.key`` names)
+    and ``may_change_sections``. A key the old deck lacks (added since it was written) counts as
+    unchanged when the new deck leaves it at its default."""
     out = []
     for section, table in new.items():
-        if section in RESTART_MAY_CHANGE_SECTIONS:
+        if section in may_change_sections:
             continue
         for key, value in table.items():
             name = f"{section}.{key}"
-            if key not in old.get(section, {}) and _plain(value) == _plain(_default(section, key)):
+            f = schema.get(section, {}).get(key)
+            if key not in old.get(section, {}) and _plain(value) == _plain(None if f is None else f.default):
                 continue   # a key added after the checkpoint was written, left at its default
             before = old.get(section, {}).get(key)
-            if name not in RESTART_MAY_CHANGE and _plain(before) != _plain(value):
+            if name not in may_change and _plain(before) != _plain(value):
                 out.append((name, before, value))
     return out
-
-
-def _default(section, key):
-    f = COMPRESS_SCHEMA.get(section, {}).get(key)
-    return None if f is None else f.default
 
 
 def _plain(v):
@@ -373,10 +252,13 @@ def check_deck(schema, raw):
 
 
 def describe(schema):
-    """Human-readable list of the deck keys with their defaults (for ``--help``)."""
+    """Human-readable list of the deck keys with their defaults, and the allowed values of every
+    choice key (for ``--help``)."""
     lines = []
     for section, fields in schema.items():
         lines.append(f"[{section}]")
         for key, f in fields.items():
-            lines.append(f"  {key} = {f.default!r}   # {f.doc}")
+            options = getattr(f.check, "options", None)
+            allowed = f" (one of: {', '.join(map(str, options))})" if options else ""
+            lines.append(f"  {key} = {f.default!r}   # {f.doc}{allowed}")
     return "\n".join(lines)

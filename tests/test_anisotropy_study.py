@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 
 from pardem.protocols import anisotropy_study as study
-from pardem.config import COMPRESS_SCHEMA, load_deck
+from pardem.config import load_deck
+from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.drivers import anisotropy
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
@@ -287,3 +288,38 @@ def test_plan_groups_realisations_and_balances_ranks():
         if n == 2:
             cost = [sum(sum(study.estimated_cost(c, plan) for c in groups[i]) for i in p) for p in parts]
             assert max(cost) <= 1.1 * min(cost)
+
+
+def test_a_killed_study_continues_where_it_stopped(quick, tmp_path):
+    """A study killed after its third case (the fourth record cut mid-line) and continued with
+    --restart runs only the missing cases and gives the uninterrupted study's numbers exactly."""
+    ref, ref_out = quick
+    d = tmp_path / "s"
+    shutil.copytree(ref_out, d)
+    log = d / "records" / "rank-0.jsonl"
+    lines = log.read_text().splitlines(keepends=True)
+    assert len(lines) == ref["meta"]["n_cases"]           # one record per case, written as it ends
+    log.write_text("".join(lines[:3]) + lines[3][:25])
+    (d / "anisotropy.json").unlink()
+    data = run_driver(d, QUICK + ["--restart", str(d)])
+    assert data["meta"]["cases_reused"] == 3 and data["meta"]["restarted_from"] == str(d)
+    assert data["ordered"] == ref["ordered"]
+    drop = {"seconds", "rank"}
+    assert ([{k: v for k, v in c.items() if k not in drop} for c in data["meta"]["cases"]]
+            == [{k: v for k, v in c.items() if k not in drop} for c in ref["meta"]["cases"]])
+
+
+def test_restart_refuses_another_study_and_new_study_refuses_a_used_dir(quick, capsys, tmp_path):
+    """--restart with other options, or a new study into a directory holding one, exit 2 with one
+    line and run nothing."""
+    _, ref_out = quick
+    d = tmp_path / "s"
+    shutil.copytree(ref_out, d)
+    for argv, words in ((QUICK[:3] + ["--ratios", "1,5", "--xi-step", "45", "--set", SMALL, "--quiet",
+                                       "--restart", str(d)], "another plan"),
+                        (QUICK, "holds another study")):
+        with pytest.raises(SystemExit) as exc:
+            anisotropy.main(argv + ["--out", str(d)])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0], err

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from pardem.protocols.compression import build_case
-from pardem.config import COMPRESS_SCHEMA, load_deck
+from pardem.config import load_deck
+from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.domains.compact import (MIN_FRACTION, bonded_pairs, compact_domain, compact_packing,
                                     element_count, overlap_forces)
 from pardem.drivers import compress
@@ -253,12 +254,12 @@ def test_compression_modulus_within_the_voigt_bound(column_run, column):
     s, _ = column_run
     deck = load_deck(COMPRESS_SCHEMA, None, [a for a in COLUMN_ARGS if a != "--set"])
     case = build_case(Communicator(), deck, packing=column)   # the same packing (seed 2, flat x)
-    assert case.n_elements == s["n_elements"] and case.n_bonds == s["n_bonds"]
-    assert case.constants["solid_fraction"] >= MIN_FRACTION
-    assert case.n_elements + case.constants["removed_elements"] == column.n
-    assert np.isnan(case.analytic_young) and s["young_modulus_analytic"] is None   # strict JSON
+    assert case.constants.n_elements == s["n_elements"] and case.constants.n_bonds == s["n_bonds"]
+    assert case.constants.domain_facts["solid_fraction"] >= MIN_FRACTION
+    assert case.constants.n_elements + case.constants.domain_facts["removed_elements"] == column.n
+    assert np.isnan(case.constants.analytic_young) and s["young_modulus_analytic"] is None   # strict JSON
     assert s["domain"]["solid_fraction"] >= MIN_FRACTION
-    assert case.cross_section == pytest.approx(COLUMN[1] * COLUMN[2], rel=1e-12)
+    assert case.constants.cross_section == pytest.approx(COLUMN[1] * COLUMN[2], rel=1e-12)
     E, bound = s["young_modulus"], voigt_young(case, 0)
     assert np.isfinite(E) and 0.5 * bound < E <= bound
     assert s["young_modulus_secant"] == pytest.approx(E, rel=0.05)

@@ -5,7 +5,9 @@ import sys
 
 import pytest
 
-from pardem.config import COMPRESS_SCHEMA, DeckError, defaults, load_deck
+from pardem.config import DeckError, defaults, load_deck
+
+from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.drivers import compress
 
 BAD = [
@@ -106,3 +108,30 @@ def test_help_lists_every_key(capsys):
     for section, fields in COMPRESS_SCHEMA.items():
         for key in fields:
             assert key in text, key
+
+
+def test_a_run_too_short_to_measure_says_so_and_exits_4(capsys, tmp_path):
+    """50 steps end inside the plate's ramp: no sample to fit the modulus. The driver writes its
+    files, prints one line saying why there is no modulus, and exits 4 (not 0 with E = nan)."""
+    out = tmp_path / "short"
+    with pytest.raises(SystemExit) as exc:
+        compress.main(["--steps", "50", "--out", str(out), "--quiet"])
+    assert exc.value.code == 4
+    err = capsys.readouterr().err.strip().splitlines()
+    short = [line for line in err if "too short to measure" in line]   # (after the dynamic-loading warning)
+    assert len(short) == 1 and "ramp" in short[0] and "Traceback" not in "".join(err), err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["young_modulus"] is None and summary["samples_after_ramp"] == 0
+
+
+def test_help_lists_the_allowed_values_of_every_choice_key():
+    """Every key whose checker is a choice shows its options in --help (from the checker itself,
+    so a new option appears without editing the help text)."""
+    from pardem.config import describe
+    text = describe(COMPRESS_SCHEMA)
+    for section, fields in COMPRESS_SCHEMA.items():
+        for key, f in fields.items():
+            options = getattr(f.check, "options", None)
+            if options:
+                assert "(one of: " + ", ".join(map(str, options)) + ")" in text
+    assert "anisotropy law (one of: TOR, hankinson, linear, spherical)" in text

@@ -14,6 +14,8 @@ import time
 import numpy as np
 import pytest
 
+from _util import ran_to_end
+
 from pardem.io.series import read_series
 
 pytestmark = pytest.mark.mpi
@@ -32,8 +34,8 @@ def compress(tmp_path, n, name, extra=()):
     """The default case; a small skin makes the ghost layers rebuild several times during it."""
     out = tmp_path / name
     p = mpirun(n, ["-m", "pardem.drivers.compress", "--quiet", "--out", str(out),
-                   "--set", "parallel.skin=0.02e-3", *extra])
-    assert p.returncode == 0, p.stderr
+                   "--set", "run.skin=0.02e-3", *extra])
+    assert ran_to_end(p), p.stderr
     return json.loads((out / "summary.json").read_text()), read_series(out / "series.csv")
 
 
@@ -76,7 +78,7 @@ def test_ranks_agree_with_one_rank(serial, tmp_path, n, axis):
 def test_migration_keeps_every_element_and_bond(tmp_path, n):
     out = tmp_path / "mig.json"
     p = mpirun(n, [os.path.join(HERE, "mpi", "migrate.py"), str(out)])
-    assert p.returncode == 0, p.stderr
+    assert ran_to_end(p), p.stderr
     r = json.loads(out.read_text())
     assert r["rebuilds"] > 100 and r["travel_in_slab_widths"] >= 1.0
     assert r["total_owned"] == r["unique_elements"] == r["n_elements"]
@@ -90,7 +92,7 @@ def test_migration_keeps_every_element_and_bond(tmp_path, n):
 def test_ghosts_equal_owners_after_every_step(tmp_path, n):
     out = tmp_path / "ghosts.json"
     p = mpirun(n, [os.path.join(HERE, "mpi", "ghosts.py"), str(out), "400"])
-    assert p.returncode == 0, p.stderr
+    assert ran_to_end(p), p.stderr
     r = json.loads(out.read_text())
     assert r["steps"] == 400 * n and r["rebuilds"] > 3 and r["ghosts_checked"] > 0
     assert r["mismatches"] == 0

@@ -21,6 +21,8 @@ import meshio
 import numpy as np
 import pytest
 
+from _util import ran_to_end
+
 from pardem.engine.contacts import pair_keys
 from pardem.io.series import read_series
 
@@ -37,7 +39,7 @@ def driver(n, args, timeout=600):
     cmd = ([MPIEXEC, "-n", str(n)] if n > 1 else []) + [sys.executable, "-m", "pardem.drivers.compress",
                                                         "--quiet", *args]
     p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
-    assert p.returncode == 0, p.stderr
+    assert ran_to_end(p), p.stderr
     return p
 
 

@@ -32,6 +32,7 @@ Exit codes: 0 done (failed measurements are flagged in the output, not errors), 
 (all ranks stop), 2 bad input (one line naming the option or deck field and the allowed values).
 """
 import datetime
+import json
 import os
 import sys
 import time
@@ -43,7 +44,9 @@ import pardem
 from pardem.protocols import anisotropy_study as study
 from pardem.drivers.cli import EXIT_OK, driver_parser, fail_usage, run_driver
 from pardem.protocols.compression import build_case
-from pardem.config import COMPRESS_SCHEMA, DeckError, load_deck
+from pardem.config import DeckError, load_deck
+from pardem.protocols.compression_deck import COMPRESS_SCHEMA
+from pardem.io.records import RecordLog, read_records, read_study_header, write_study_header
 from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator
 
@@ -69,6 +72,10 @@ def parser(comm=None):
     p.add_argument("--quick", action="store_true",
                    help="a small study for tests: boxes of 18 radii, ratios 1,5, 2 realisations, xi step 45")
     p.add_argument("--no-plot", action="store_true", dest="no_plot", help="do not write anisotropy.png")
+    p.add_argument("--restart", metavar="DIR",
+                   help="continue the study whose output is DIR (killed or stopped): the cases recorded in "
+                        "DIR/records are not run again; the same deck and options are required (--out "
+                        "defaults to DIR)")
     return p
 
 
@@ -130,11 +137,6 @@ def main(argv=None):
     return run_driver(comm, run, parser(comm).parse_args(argv))
 
 
-def _case_comm():
-    from mpi4py import MPI
-    return Communicator(MPI.COMM_SELF)
-
-
 def _finite_or_none(obj):
     """JSON without NaN/inf: undefined numbers become null."""
     if isinstance(obj, dict):
@@ -148,7 +150,7 @@ def _finite_or_none(obj):
 
 def run(comm, args):
     t_start = time.perf_counter()
-    case_comm = _case_comm()
+    case_comm = comm.split_self()
     try:
         overrides = (study.QUICK_SET if args.quick else []) + args.overrides
         deck = load_deck(COMPRESS_SCHEMA, args.config, overrides,
@@ -172,6 +174,10 @@ def run(comm, args):
         problem = comm.bcast(problem, root=root)
         if problem:
             fail_usage(comm, problem)
+    header = _plain_json({"deck": deck, "plan": asdict(plan)})
+    finished = {}
+    if args.restart:
+        finished = _finished_cases(comm, args.restart, header)
     plot = not args.no_plot
     if plot and comm.is_root:
         try:
@@ -180,18 +186,34 @@ def run(comm, args):
             plot = False
             sys.stderr.write("pardem: note: matplotlib is not installed, so no anisotropy.png "
                              "(pip install 'pardem[plot]')\n")
-    out = args.out or os.path.join("runs", "anisotropy-" + comm.bcast(
+    out = args.out or args.restart or os.path.join("runs", "anisotropy-" + comm.bcast(
         datetime.datetime.now().strftime("%Y%m%d-%H%M%S")))
+    same_dir = bool(args.restart) and os.path.realpath(out) == os.path.realpath(args.restart)
+    if not same_dir and comm.bcast(read_study_header(out) is not None if comm.is_root else None):
+        fail_usage(comm, f"--out {out} holds another study's records: choose another --out, or continue "
+                         f"that study with --restart {out}")
     n_cases = sum(len(g) for g in study.plan_cases(plan))
     if comm.is_root:
         os.makedirs(out, exist_ok=True)
+        write_study_header(out, header)
+        if finished and not same_dir:
+            log = RecordLog(out, 0)   # the new directory holds every record, for a later restart
+            for rec in finished.values():
+                log.append(rec)
+    comm.barrier()
+    log = RecordLog(out, comm.rank)
+    if comm.is_root:
         print(f"pardem {pardem.__version__}: anisotropy study, {n_cases} compressions on {comm.size} "
               f"rank(s): kinds {','.join(plan.kinds)}, laws {','.join(plan.laws)}, E_L/E_R "
               f"{','.join(f'{q:g}' for q in plan.ratios)} (E_R = {plan.E_R / 1e6:g} MPa, E_T = "
               f"{plan.E_T / 1e6:g} MPa), off-axis xi {','.join(f'{x:g}' for x in plan.xis()) or 'none'} "
               f"at E_L/E_R = {plan.offaxis_ratio:g}; output {out}", flush=True)
     progress = None if args.quiet else _progress(time.perf_counter())
-    records = study.run_study(comm, case_comm, deck, plan, progress, packings)
+    if finished and comm.is_root:
+        print(f"restart: {len(finished)} of {n_cases} cases recorded in {args.restart} are not run again",
+              flush=True)
+    records = study.run_study(comm, case_comm, deck, plan, progress, packings, finished=finished,
+                              on_record=log.append)
     if comm.is_root:
         data = study.summarise(records, plan)
         failed = [r for r in records if r["status"] != "ok"]
@@ -199,6 +221,7 @@ def run(comm, args):
             "pardem_version": pardem.__version__, "driver": "anisotropy", "n_ranks": comm.size,
             "wall_seconds": time.perf_counter() - t_start, "plan": asdict(plan), "xi_deg": plan.xis(),
             "n_cases": len(records), "n_failed_cases": len(failed),
+            "restarted_from": args.restart, "cases_reused": len(finished),
             "ordered": "the ordered lattice is deterministic: each of its cases ran once, so its std is 0",
             "statistics": "mean and sample standard deviation (ddof = 1) over the realisations whose L, R "
                           "and T compressions all succeeded; ratios are taken per realisation",
@@ -224,6 +247,27 @@ def run(comm, args):
         print(f"wrote {' and '.join(os.path.join(out, w) for w in written)} in "
               f"{data['meta']['wall_seconds']:.1f} s", flush=True)
     return EXIT_OK
+
+
+def _plain_json(obj):
+    """``obj`` as JSON gives it back (tuples as lists, NaN kept), for comparing with a stored header."""
+    return json.loads(json.dumps(obj, sort_keys=True))
+
+
+def _finished_cases(comm, directory, header):
+    """The records of a previous run of the same study in ``directory`` by case id (every rank reads
+    them); exits 2 with one line if ``directory`` is not a study's output or its deck and plan differ."""
+    old = read_study_header(directory)
+    if old is None:
+        fail_usage(comm, f"--restart {directory}: no study.json there: not the output of an anisotropy study")
+    for part in ("plan", "deck"):
+        if old.get(part) != header[part]:
+            keys = sorted(set(old.get(part) or {}) | set(header[part]))
+            first = next((k for k in keys if (old.get(part) or {}).get(k) != header[part].get(k)), part)
+            fail_usage(comm, f"--restart {directory}: the study there has another {part} ({first}: "
+                             f"{(old.get(part) or {}).get(first)!r} there, {header[part].get(first)!r} now): "
+                             f"repeat its options and deck to continue it")
+    return {study.case_id(r): r for r in read_records(directory)}
 
 
 def _progress(t0):

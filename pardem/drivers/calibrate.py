@@ -38,8 +38,9 @@ import time
 import pardem
 from pardem.protocols import calibration as calib
 from pardem.drivers.cli import EXIT_OK, EXIT_UNSTABLE, driver_parser, fail_usage, read_deck, run_driver
-from pardem.protocols.compression import SeriesSampler, build_case, measure
-from pardem.config import COMPRESS_SCHEMA, DeckError, check_deck
+from pardem.protocols.compression import SeriesSampler, build_case, measure, with_plate_speed
+from pardem.config import DeckError, check_deck
+from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator
 from pardem.engine.errors import DecompositionError
@@ -110,16 +111,15 @@ def compression_modulus(comm, raw, axis, strain, transits):
     raw = copy.deepcopy(raw)
     raw.setdefault("loading", {}).update(axis=axis, strain=strain)
     probe = build_case(comm, check_deck(COMPRESS_SCHEMA, raw))
-    raw["loading"]["plate_speed"] = strain * probe.length / (transits * probe.transit_time)
-    case = build_case(comm, check_deck(COMPRESS_SCHEMA, raw))
+    case = with_plate_speed(probe, strain * probe.constants.length / (transits * probe.constants.transit_time))
     sampler = SeriesSampler(case, max(1, case.n_steps // 200))
     sampler(case.sim)
     case.sim.run(case.n_steps, operations=[sampler])
     result = measure(case)
     return {"axis": axis, "young_modulus": result["young_modulus"],
             "young_modulus_secant": result["young_modulus_secant"],
-            "analytic": case.analytic_young, "steps": case.n_steps, "n_elements": case.n_elements,
-            "plate_speed": raw["loading"]["plate_speed"], "poisson_ratios": result["poisson_ratios"]}
+            "analytic": case.constants.analytic_young, "steps": case.n_steps, "n_elements": case.constants.n_elements,
+            "plate_speed": case.deck["loading"]["plate_speed"], "poisson_ratios": result["poisson_ratios"]}
 
 
 def _row(target, measured, **extra):

@@ -7,7 +7,6 @@ Writes ``DIR/summary.json`` and ``DIR/series.csv`` (see README). With no options
 case: the 10 mm cube of 21^3 elements compressed along x to 0.5 % nominal strain.
 """
 import contextlib
-import datetime
 import os
 import sys
 import time
@@ -15,30 +14,22 @@ import time
 import numpy as np
 
 import pardem
-from pardem.drivers.cli import EXIT_UNSTABLE, driver_parser, fail_usage, read_deck, run_driver
-from pardem.protocols.compression import (SeriesSampler, build_case, checkpoint_payload, loading_warning,
+from pardem.drivers.cli import EXIT_NOT_MEASURED, default_out, driver_parser, fail_usage, read_deck, run_driver
+from pardem.protocols.compression import (MIN_FIT_SAMPLES, SeriesSampler, build_case, checkpoint_payload, loading_warning,
                                 measure, restore_case)
 from pardem.io import checkpoint
 from pardem.io.checkpoint_writer import CheckpointWriter
 from pardem.io.paraview import ParaViewWriter
 from pardem.io.progress import Progress
-from pardem.config import COMPRESS_SCHEMA, DeckError
+from pardem.config import DeckError
+from pardem.protocols.compression_deck import COMPRESS_SCHEMA, upgrade
 from pardem.io.series import SeriesCSV
 from pardem.io.series_h5 import SeriesH5
 from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator
-from pardem.engine.errors import DecompositionError, InstabilityError
+from pardem.parallel.slab_comm import rank_report
+from pardem.engine.errors import DecompositionError
 from pardem.engine.simulation import FaultInjection
-
-
-def _default_out(comm, restart):
-    """``runs/compress-<timestamp>``, or the run directory of the checkpoint being continued."""
-    if restart:
-        parent = os.path.dirname(os.path.abspath(restart))
-        if os.path.basename(parent) == "checkpoints":
-            return os.path.dirname(parent)
-    stamp = comm.bcast(datetime.datetime.now().strftime("%Y%m%d-%H%M%S"))
-    return os.path.join("runs", f"compress-{stamp}")
 
 
 def main(argv=None):
@@ -58,7 +49,7 @@ def _run(comm, args, files):
     try:
         if args.restart:
             meta = checkpoint.inspect(args.restart)
-            deck = read_deck(comm, COMPRESS_SCHEMA, args, base=meta["deck"])
+            deck = read_deck(comm, COMPRESS_SCHEMA, args, base=upgrade(meta["deck"]))
             case = restore_case(comm, deck, args.restart, steps=args.steps)
         else:
             deck = read_deck(comm, COMPRESS_SCHEMA, args)
@@ -66,10 +57,9 @@ def _run(comm, args, files):
         checkpoint.parallel_hdf5(deck["checkpoint"]["driver"])   # refuse "mpio" without MPI h5py now
     except (DeckError, checkpoint.CheckpointError, DecompositionError) as err:
         fail_usage(comm, str(err))
-    out = args.out or _default_out(comm, args.restart)
+    out = args.out or default_out(comm, "compress", args.restart)
     sim = case.sim
-    e = sim.elements
-    n_el, n_bonds = case.n_elements, case.n_bonds
+    n_el, n_bonds = case.constants.n_elements, case.constants.n_bonds
     every = deck["output"]["series_every"] or max(1, case.n_steps // 200)
     sinks = []
     if comm.is_root:
@@ -82,9 +72,9 @@ def _run(comm, args, files):
         for s in case.samples:
             csv.append(s)
         sinks += [csv.append, h5.append]
-        print(f"pardem {pardem.__version__}: compression along {'xyz'[case.axis]}, {n_el} elements, "
+        print(f"pardem {pardem.__version__}: compression along {'xyz'[case.constants.axis]}, {n_el} elements, "
               f"{n_bonds} bonds, {comm.size} rank(s)\n"
-              f"dt = {sim.dt:.4e} s (critical {case.dt_critical:.4e} s), steps {sim.step_count} to "
+              f"dt = {sim.dt:.4e} s (critical {case.constants.dt_critical:.4e} s), steps {sim.step_count} to "
               f"{case.n_steps}, output {out}" + (f", restarted from {args.restart}" if args.restart else ""),
               flush=True)
         warning = loading_warning(case)
@@ -95,7 +85,7 @@ def _run(comm, args, files):
         sampler(sim)   # the initial state
     # after the initial sample: the rate is measured from the first sample of the run on
     progress = Progress(comm, case.n_steps, deck["run"]["progress_seconds"], n_el, quiet=args.quiet)
-    axis = case.axis
+    axis = case.constants.axis
     sampler.sinks.append(lambda s: progress.report(
         s["step"], f"t = {s['time']:.4e} s  eps = {s['eps'][axis, axis]:+.4e}  F = {s['force_fixed']:.4e} N"))
     ck = deck["checkpoint"]
@@ -112,22 +102,14 @@ def _run(comm, args, files):
         operations.append(fault)
     t_run = time.perf_counter()
     steps_run = case.steps_left
-    try:
-        sim.run(steps_run, operations=operations)
-    except InstabilityError as err:
-        if comm.is_root:
-            sys.stderr.write(f"pardem: error: the motion became unstable {err}; reduce run.dt or check "
-                             f"the stiffness and damping; the last checkpoint (if any) is intact\n")
-        raise SystemExit(EXIT_UNSTABLE)
+    sim.run(steps_run, operations=operations)   # an InstabilityError ends the run in run_driver (exit 3)
     files.close()
     if ck["at_end"]:
         writer.write(sim)
     wall_run = time.perf_counter() - t_run
     result = measure(case)
-    per_rank = sim.domain.report(sim) if sim.domain is not None else [
-        {"rank": 0, "owned_elements": e.n_owned, "ghost_elements": 0, "bonds_held": sim.bonds.n,
-         "seconds_computing": sim.seconds_computing, "seconds_communicating": 0.0,
-         "rebuilds": 0, "rebalances": 0}]
+    per_rank = (sim.domain.report(sim.elements, sim.bonds, sim.seconds_computing) if sim.domain is not None
+                else [rank_report(0, sim.elements, sim.bonds, sim.seconds_computing)])
     counts = comm.sum([sim.elements.n_owned, int(np.count_nonzero(sim.bonds.counted_once(sim.elements.n_owned)))])
     if comm.is_root:
         summary = {
@@ -135,18 +117,18 @@ def _run(comm, args, files):
             "driver": "compress",
             "n_elements": n_el, "n_bonds": n_bonds, "n_ranks": comm.size,
             "n_elements_end": int(counts[0]), "n_bonds_end": int(counts[1]),
-            "slab_axis": "xyz"[case.slab_axis], "per_rank": per_rank,
-            "steps": sim.step_count, "dt": sim.dt, "dt_critical": case.dt_critical,
-            "time": sim.time, "loading_axis": "xyz"[case.axis],
-            "nominal_strain": sim.plates.displacement() / case.length,
+            "slab_axis": "xyz"[case.constants.slab_axis], "per_rank": per_rank,
+            "steps": sim.step_count, "dt": sim.dt, "dt_critical": case.constants.dt_critical,
+            "time": sim.time, "loading_axis": "xyz"[case.constants.axis],
+            "nominal_strain": sim.plates.displacement() / case.constants.length,
             "ramp_time": sim.plates.ramp_time,
-            "wave_transit_time": case.transit_time,
-            "cross_section": case.cross_section,
-            "domain": {k: case.constants[k] for k in ("solid_fraction", "packing_fraction", "mean_radius",
-                                                      "coordination", "removed_elements", "max_overlap")
-                       if k in case.constants},
+            "wave_transit_time": case.constants.transit_time,
+            "cross_section": case.constants.cross_section,
+            "domain": {k: case.constants.domain_facts[k] for k in ("solid_fraction", "packing_fraction", "mean_radius",
+                                                                 "coordination", "removed_elements", "max_overlap")
+                       if k in case.constants.domain_facts},
             **result,
-            "young_modulus_analytic": case.analytic_young,
+            "young_modulus_analytic": case.constants.analytic_young,
             "wall_seconds": time.perf_counter() - t_start,
             "run_seconds": wall_run,
             "element_steps_per_second": n_el * steps_run / wall_run,
@@ -156,12 +138,19 @@ def _run(comm, args, files):
         }
         write_json(os.path.join(out, "summary.json"), summary)
         E = result["young_modulus"]
+        if not np.isfinite(E):
+            sys.stderr.write(
+                f"pardem: error: the run is too short to measure the modulus: "
+                f"{result['samples_after_ramp']} sample(s) after the {sim.plates.ramp_time:.4g} s ramp, "
+                f"expected at least {MIN_FIT_SAMPLES}; run longer (--steps, loading.strain) or sample more "
+                f"often (output.series_every); wrote {out}/summary.json\n")
+            raise SystemExit(EXIT_NOT_MEASURED)
         nus = ", ".join(f"nu_{k} = {v:.4f}" for k, v in result["poisson_ratios"].items())
-        line = (f"E_{'xyz'[case.axis]} = {E / 1e6:.3f} MPa (quasi-static slope), "
+        line = (f"E_{'xyz'[case.constants.axis]} = {E / 1e6:.3f} MPa (quasi-static slope), "
                 f"{result['young_modulus_secant'] / 1e6:.3f} MPa (secant, fixed plate)")
-        if np.isfinite(case.analytic_young):
-            line += (f";  analytic pi/4 E r^2 = {case.analytic_young / 1e6:.3f} MPa "
-                     f"({100 * (E / case.analytic_young - 1):+.2f} %)")
+        if np.isfinite(case.constants.analytic_young):
+            line += (f";  analytic pi/4 E r^2 = {case.constants.analytic_young / 1e6:.3f} MPa "
+                     f"({100 * (E / case.constants.analytic_young - 1):+.2f} %)")
         if sim.bonds.breakable or sim.bonds.densify_p0 > 0.0:
             nus += (f"\npeak stress {result['peak_stress'] / 1e6:.4g} MPa at strain "
                     f"{result['strain_at_peak']:.4g}; bonds broken {result['bonds_broken']} of {n_bonds}, "

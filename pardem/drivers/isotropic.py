@@ -36,8 +36,8 @@ import sys
 import time
 
 import pardem
-from pardem.config import DeckError, load_deck
-from pardem.drivers.cli import EXIT_OK, driver_parser, fail_usage, run_driver
+from pardem.config import DeckError
+from pardem.drivers.cli import EXIT_OK, default_out, driver_parser, fail_usage, read_deck, run_driver
 from pardem.engine import granular
 from pardem.engine.errors import DecompositionError
 from pardem.engine.simulation import FaultInjection
@@ -55,17 +55,11 @@ RESTART_MAY_CHANGE = ("run.progress_seconds", "run.slab_axis", "preparation.max_
 
 def parser(comm=None):
     p = driver_parser("python -m pardem.drivers.isotropic", __doc__.split("\n\n")[0], iso.SCHEMA,
-                      comm=comm, out_default="runs/isotropic-<timestamp>",
+                      comm=comm, steps_help=(gout.STEPS_HELP + "; the run stops at the first equilibrium check (every "
+                                 "preparation.check_every steps) at or after step N"),
+                      restart_help=gout.restart_help(RESTART_MAY_CHANGE), out_default="runs/isotropic-<timestamp>",
                       epilog="outputs: DIR/isotropic.json, isotropic.csv, isotropic.h5, isotropic.png, "
                              "force_distribution.png, checkpoints/, paraview/")
-    for a in p._actions:
-        if a.dest == "steps":
-            a.help = (gout.STEPS_HELP + "; the run stops at the first equilibrium check (every "
-                      "preparation.check_every steps) at or after step N")
-        elif a.dest == "restart":
-            a.help = ("continue the run of this checkpoint; its deck is used unless --config is given, "
-                      "and --set may change only " + ", ".join(RESTART_MAY_CHANGE) +
-                      " and the [output] and [checkpoint] keys")
     p.add_argument("--pressures", metavar="P1,P2,...",
                    help="target pressures p0 [Pa], comma-separated (overrides preparation.pressures)")
     return p
@@ -97,9 +91,7 @@ def _run(comm, args, files):
     try:
         if args.restart:
             meta = gout.inspect_restart(args.restart, "isotropic")
-        if args.steps is not None and args.steps < 1:
-            raise DeckError(f"--steps {args.steps}: expected an integer >= 1")
-        deck = load_deck(iso.SCHEMA, args.config, args.overrides, base=meta["deck"] if meta else None)
+        deck = read_deck(comm, iso.SCHEMA, args, base=meta["deck"] if meta else None)
         iso.check_sample(deck)
         if args.pressures is not None:
             deck["preparation"]["pressures"] = _pressures(args.pressures)
@@ -113,7 +105,7 @@ def _run(comm, args, files):
     except (DeckError, checkpoint.CheckpointError, DecompositionError) as err:
         fail_usage(comm, str(err))
     pressures = sorted(deck["preparation"]["pressures"])
-    out = args.out or gout.default_out(comm, "isotropic", args.restart)
+    out = args.out or default_out(comm, "isotropic", args.restart)
     if comm.is_root:
         os.makedirs(out, exist_ok=True)
     comm.barrier()

@@ -34,10 +34,10 @@ import sys
 import time
 
 import pardem
-from pardem.config import DeckError, load_deck
-from pardem.drivers.cli import EXIT_OK, EXIT_UNSTABLE, driver_parser, fail_usage, run_driver
+from pardem.config import DeckError
+from pardem.drivers.cli import EXIT_OK, default_out, driver_parser, fail_usage, read_deck, run_driver
 from pardem.engine import granular
-from pardem.engine.errors import DecompositionError, InstabilityError
+from pardem.engine.errors import DecompositionError
 from pardem.engine.simulation import FaultInjection
 from pardem.io import checkpoint
 from pardem.io.progress import Progress
@@ -52,17 +52,11 @@ RESTART_MAY_CHANGE = ("run.progress_seconds", "run.slab_axis", "loading.strain",
 
 def parser(comm=None):
     p = driver_parser("python -m pardem.drivers.triaxial", __doc__.split("\n\n")[0], triaxial.SCHEMA,
-                      comm=comm, out_default="runs/triaxial-<timestamp>",
+                      comm=comm, steps_help=gout.STEPS_HELP,
+                      restart_help=gout.restart_help(RESTART_MAY_CHANGE), out_default="runs/triaxial-<timestamp>",
                       deck_title="deck keys and defaults (drivers/triaxial_cemented.toml)",
                       epilog="outputs: DIR/triaxial.csv, triaxial.h5, triaxial.json, triaxial.png, "
                              "checkpoints/, paraview/")
-    for a in p._actions:
-        if a.dest == "steps":
-            a.help = gout.STEPS_HELP
-        elif a.dest == "restart":
-            a.help = ("continue the run of this checkpoint; its deck is used unless --config is given, "
-                      "and --set may change only " + ", ".join(RESTART_MAY_CHANGE) +
-                      " and the [output] and [checkpoint] keys")
     return p
 
 
@@ -82,9 +76,7 @@ def _run(comm, args, files):
     try:
         if args.restart:
             meta = gout.inspect_restart(args.restart, "triaxial")
-        if args.steps is not None and args.steps < 1:
-            raise DeckError(f"--steps {args.steps}: expected an integer >= 1")
-        deck = load_deck(triaxial.SCHEMA, args.config, args.overrides, base=meta["deck"] if meta else None)
+        deck = read_deck(comm, triaxial.SCHEMA, args, base=meta["deck"] if meta else None)
         triaxial.check_deck(deck)
         if meta is not None:
             gout.check_restart(args.restart, meta, deck, triaxial.SCHEMA, args.steps, RESTART_MAY_CHANGE,
@@ -97,7 +89,7 @@ def _run(comm, args, files):
             case = granular.restore(comm, args.restart, slab_axis=triaxial.AXES.index(deck["run"]["slab_axis"]))
     except (DeckError, ValueError, checkpoint.CheckpointError, DecompositionError) as err:
         fail_usage(comm, str(err))
-    out = args.out or gout.default_out(comm, "triaxial", args.restart)
+    out = args.out or default_out(comm, "triaxial", args.restart)
     if comm.is_root:
         os.makedirs(out, exist_ok=True)
     comm.barrier()
@@ -145,11 +137,6 @@ def _run(comm, args, files):
             state["stage"] = "done"
     except gout.StepLimit as err:
         stopped = str(err)
-    except InstabilityError as err:
-        if comm.is_root:
-            sys.stderr.write(f"pardem: the run became unstable: {err}; the last checkpoint (if any) is "
-                             f"intact\n")
-        raise SystemExit(EXIT_UNSTABLE)
     series.close()
     if deck["checkpoint"]["at_end"]:
         writer.write(sim)

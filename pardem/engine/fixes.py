@@ -171,49 +171,49 @@ class ElementSelection:
         return self._rows, self._index
 
 
-class Gravity:
+class _Load:
+    """Base of the loads: checks, once per list of fixes, that no constraint precedes them."""
+    stage = LOAD
+    _order_checked = None
+
+    def _check_order(self, sim):
+        key = tuple(map(id, sim.fixes))
+        if self._order_checked != key:
+            _check_order(sim, self)
+            self._order_checked = key
+
+
+class Gravity(_Load):
     """Uniform acceleration ``g`` [m/s^2] (shape [3], default ``(0, 0, -9.81)``): ``f += m g`` on
     every owned element."""
-    stage = LOAD
-
     def __init__(self, g=(0.0, 0.0, -9.81)):
         g = np.asarray(g, dtype=np.float64)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
             raise ValueError(f"g must be a finite vector of shape (3,) [m/s^2], got {g!r}")
         self.g = g
-        self._order_checked = None
 
     def post_force(self, sim):
-        key = tuple(map(id, sim.fixes))
-        if self._order_checked != key:
-            _check_order(sim, self)
-            self._order_checked = key
+        self._check_order(sim)
         e = sim.elements
         n = e.n_owned
         e.f[:n] += e.mass[:n, None] * self.g
 
 
-class ExternalForce:
+class ExternalForce(_Load):
     """Constant force ``force`` [N] and optional torque ``torque`` [N m] (about the element's
     centre) on the elements of global ids ``gids`` [k].
 
     force, torque : shape [3] (the same on each element) or [k, 3] (row m for ``gids[m]``).
     The load can be changed between runs through ``self.force`` / ``self.torque`` ([k, 3] arrays).
     """
-    stage = LOAD
-
     def __init__(self, gids, force, torque=None):
         self.selection = ElementSelection(gids)
         k = len(self.selection.gids)
         self.force = _vectors(force, k, "force", "[N]").copy()
         self.torque = None if torque is None else _vectors(torque, k, "torque", "[N m]").copy()
-        self._order_checked = None
 
     def post_force(self, sim):
-        key = tuple(map(id, sim.fixes))
-        if self._order_checked != key:
-            _check_order(sim, self)
-            self._order_checked = key
+        self._check_order(sim)
         e = sim.elements
         rows, idx = self.selection.rows(e, sim.comm)
         e.f[rows] += self.force[idx]

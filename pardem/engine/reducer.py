@@ -15,7 +15,7 @@ from pardem.engine.state import FLAG_NEAR_PLATE
 
 @njit(cache=True, error_model="numpy")
 def strain_sums(x, x0, flags, n_owned, origin, out):
-    """Fill ``out`` [25] with n, sum X, sum U, sum X X^T (9), sum X U^T (9) over kept owned rows.
+    """Fill ``out`` [STRAIN_SUMS = 25] with n, sum X, sum U, sum X X^T (9), sum X U^T (9) over kept owned rows.
 
     X = x0 - origin (a fixed point near the domain centre, against round-off), U = x - x0.
     """
@@ -66,39 +66,51 @@ def young_and_poisson(eps, force, axis, cross_section):
     return float(young), nus
 
 
+STRAIN_SUMS = 25   # length of ``strain_sums``' output
+
+
 class Reducer:
     """Samples the global plate forces, strain and bond damage of a ``Simulation`` with one
     collective."""
+    # layout of the one reduced vector: strain sums, then the named entries below
+    STRAIN = slice(0, STRAIN_SUMS)
+    PLATE_FORCES = slice(STRAIN_SUMS, STRAIN_SUMS + 2)   # fixed, moving plate [N]
+    BROKEN = STRAIN_SUMS + 2           # bonds broken so far
+    BROKEN_STEP = STRAIN_SUMS + 3      # bonds broken in the step just taken
+    YIELDED = STRAIN_SUMS + 4          # densifying bonds with plastic strain > 0
+    WIDTH = STRAIN_SUMS + 5
 
     def __init__(self, comm, origin):
         self.comm = comm
         self.origin = np.asarray(origin, dtype=np.float64)
-        self._local = np.empty(25 + 2 + 3)
+        self._local = np.empty(self.WIDTH)
 
     def sample(self, sim):
         """Dict with time, step, plate displacement, plate forces (fixed, moving), H and eps, and
         the bond counts: ``bonds_broken`` (all broken so far), ``bonds_broken_step`` (broken in the
         step just taken), ``bonds_yielded`` (densifying bonds with plastic strain > 0)."""
         e, b = sim.elements, sim.bonds
-        strain_sums(e.x, e.x0, e.flags, e.n_owned, self.origin, self._local[:25])
-        self._local[25:27] = sim.plates.force_local
+        loc = self._local
+        strain_sums(e.x, e.x0, e.flags, e.n_owned, self.origin, loc[self.STRAIN])
+        loc[self.PLATE_FORCES] = sim.plates.force_local
         once = b.counted_once(e.n_owned)
-        self._local[27] = np.count_nonzero(~b.intact[once])
-        self._local[28] = sim.bonds_broken_step
-        self._local[29] = np.count_nonzero(b.plastic[once] > 0.0) if b.densify_p0 > 0.0 else 0
-        g = self.comm.sum(self._local)
-        H = gradient_from_sums(g[:25])
+        loc[self.BROKEN] = np.count_nonzero(~b.intact[once])
+        loc[self.BROKEN_STEP] = sim.bonds_broken_step
+        loc[self.YIELDED] = np.count_nonzero(b.plastic[once] > 0.0) if b.densify_p0 > 0.0 else 0
+        g = self.comm.sum(loc)
+        H = gradient_from_sums(g[self.STRAIN])
+        fixed, moving = g[self.PLATE_FORCES]
         return {
             "time": sim.time,
             "step": sim.step_count,
             "plate_displacement": sim.plates.displacement(),
-            "force_fixed": float(g[25]),
-            "force_moving": float(g[26]),
+            "force_fixed": float(fixed),
+            "force_moving": float(moving),
             "H": H,
             "eps": strain_tensor(H),
-            "bonds_broken": int(g[27]),
-            "bonds_broken_step": int(g[28]),
-            "bonds_yielded": int(g[29]),
+            "bonds_broken": int(g[self.BROKEN]),
+            "bonds_broken_step": int(g[self.BROKEN_STEP]),
+            "bonds_yielded": int(g[self.YIELDED]),
         }
 
 
@@ -133,7 +145,7 @@ def overlap_volume(x, radius, pi, pj, shift, periodic, n_owned):
 
 
 def granular_measures(sim):
-    """Global state of a granular ``Simulation`` in a periodic cell (collective). docs/physics.md 11.
+    """Global state of a granular ``Simulation`` in a periodic cell (collective). docs/physics.md section 11.
 
     Returns a dict: ``stress`` [3, 3] [Pa], the Love-Weber stress of the contacts of the last force
     evaluation, tension positive; ``pressure`` = -trace / 3 [Pa] (compression positive); ``Z`` =

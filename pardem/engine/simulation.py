@@ -1,12 +1,16 @@
 """The time loop: a ``Simulation`` advances the state and runs operations (HOOMD style).
 
-``step()`` is the only place that sequences kernels: half kick and drift, the periodic cell's affine
-deformation, plate motion, the parallel layer's ghost exchange (or, on one process, the contact
-list's rebuild check), bond, plate and contact forces, global viscous damping, the cell's pressure
-servo, second half kick. Operations are callables
-with an ``every`` period in steps (writers, progress, checks); they run after the step whose count
-is a multiple of their period, and once more at the end of ``run``.
+``Simulation.step`` is the only place that sequences kernels and communication; its docstring is
+the recipe of one step (ARCHITECTURE.md repeats it). Around the steps, ``run`` calls:
+
+* fixes (``sim.fixes``, objects with ``post_force(sim)``; ``pardem.engine.fixes``): inside every
+  force evaluation, after all interaction forces: external loads, gravity, clamps, imposed motion;
+* operations (``Operation``: writers, progress, logs, checks, servo updaters): after the steps
+  whose count is a multiple of their ``every`` (the trigger), in list order (``sim.operations``
+  first, then those given to ``run``), and once more at the end of every ``run``.
 """
+from typing import Protocol
+
 import os
 import time as _time
 
@@ -17,6 +21,16 @@ from pardem.physics import walls
 from pardem.physics.beam import compute_bonds
 from pardem.physics.viscous_damping import damp_elements
 from pardem.physics.verlet import kick, kick_drift, kinetic_energy
+
+
+class Operation(Protocol):
+    """Something run between steps: ``every`` [steps] is its trigger; ``__call__(sim)`` runs on
+    every rank (it may use collectives), after the step whose count is a multiple of ``every`` and
+    once at the end of each ``run``. Writers (``pardem.io``) and protocol updaters are operations.
+    """
+    every: int
+
+    def __call__(self, sim: "Simulation") -> None: ...
 
 
 class FaultInjection:
@@ -116,6 +130,23 @@ class Simulation:
         return (self.contacts.reference_positions(),) if self.contacts is not None else ()
 
     def step(self, with_energy=True):
+        """Advance one step of velocity Verlet (collective on several ranks). In this order:
+
+        1. first half kick and drift of the owned rows (``physics.verlet.kick_drift``);
+        2. the periodic cell's affine deformation (``PeriodicCell.deform``), the slab cuts follow it;
+        3. the plates and walls move to their position at the end of the step;
+        4. communication: the slab layer migrates elements and rebuilds ghosts and the contact list
+           when an element moved half a skin (or a bond broke, or a rebalance is due), otherwise it
+           refreshes the ghosts (``SlabComm.update``); on one process, the contact list's rebuild
+           check instead;
+        5. forces (``compute_forces``): bonds, walls, contacts, global viscous damping, then fixes;
+        6. the cell's stress servo from the global Love-Weber stress (one allreduce);
+        7. second half kick; the largest speed is checked against ``max_speed`` (reduced every
+           ``check_every`` steps by ``run``).
+
+        ``with_energy``: compute the contact energy of this step (``run`` asks only on steps after
+        which an operation runs, LAMMPS' eflag).
+        """
         t0 = _time.perf_counter()
         e = self.elements
         kick_drift(e.x, e.v, e.w, e.q, e.rot, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned)
@@ -124,11 +155,20 @@ class Simulation:
             if factor is not None and self.domain is not None:
                 self.domain.follow_cell(factor)
         if self.plates is not None:
-            self.plates.move_to((self.step_count + 1) * self.dt)
+            # the time at the end of this step, as ``self.time`` will be (also after ``set_dt``)
+            self.plates.move_to(self._clock[1] + (self.step_count + 1 - self._clock[0]) * self.dt)
         t1 = _time.perf_counter()
         if self.domain is not None:
-            self.domain.update(self)   # migration and ghosts, or the ghost refresh
-            e = self.elements
+            # migration and ghosts, or the ghost refresh
+            u = self.domain.update(self.step_count, e, self.bonds, self.contacts, self.pairs_freed,
+                                   self._unstable, self.seconds_computing)
+            if u.unstable:
+                self.check_stability(force=True)
+            if u.rebuilt:
+                self.elements, self.bonds = u.elements, u.bonds
+                if self.contacts is not None:
+                    self.pairs_freed = False    # the freed pairs are in the new contact list
+                e = self.elements
         elif self.contacts is not None and (self.pairs_freed or self.contacts.needs_rebuild(e)):
             self.rebuild_contacts()
         t2 = _time.perf_counter()

@@ -4,10 +4,27 @@ Generic: the case's ``payload()`` gives ``(groups, series, attrs)`` for
 ``pardem.io.checkpoint.write_checkpoint``; any protocol whose case can say what to store gets
 checkpoints by adding this operation.
 """
+import math
 import os
 import time
 
+from pardem.config import Field, boolean, choice, number
 from pardem.io import checkpoint
+
+# the deck's [checkpoint] section of every driver that checkpoints: the writer's settings
+DECK_SECTION = {
+    "every_steps": Field(0, number(lo=0, lo_open=False, integer=True), "steps between checkpoints; 0 = off"),
+    "every_seconds": Field(1800.0, number(lo=0.0, lo_open=False),
+                           "wall seconds between checkpoints; 0 = off"),
+    "keep": Field(3, number(lo=1, lo_open=False, integer=True), "how many checkpoints to keep"),
+    "at_end": Field(True, boolean, "write a checkpoint when the run ends (also when --steps stops it)"),
+    "driver": Field("auto", choice("auto", "mpio", "serial"),
+                    "HDF5 writing: \"mpio\" (collective MPI-IO), \"serial\" (ranks take turns) or "
+                    "\"auto\" (mpio when h5py is built with MPI)"),
+}
+
+
+NEVER = 1 << 62   # the period of an operation that only runs at the end of each ``run``
 
 
 class CheckpointWriter:
@@ -17,12 +34,18 @@ class CheckpointWriter:
     The seconds are measured on rank 0 and its decision is broadcast (every 10 steps), so all ranks
     write together. Keeps the newest ``keep`` files in ``directory`` (``step_<k>.h5``).
     """
-    every = 1
+    SECONDS_CHECK = 10   # steps between two looks at the clock
 
     def __init__(self, payload, directory, every_steps=0, every_seconds=0.0, keep=3, mode="auto",
                  start_step=0):
         self.payload, self.directory = payload, directory
         self.every_steps, self.every_seconds = int(every_steps), float(every_seconds)
+        # the trigger: only the steps where a checkpoint may be due (an operation due on a step makes
+        # that step compute its energies, so ``every = 1`` would cost every step the energy sums)
+        if self.every_seconds > 0:
+            self.every = math.gcd(self.every_steps, self.SECONDS_CHECK)
+        else:
+            self.every = self.every_steps or NEVER
         self.keep, self.mode = int(keep), mode
         self.last_time = time.monotonic()
         self.last_step = int(start_step)
@@ -30,7 +53,7 @@ class CheckpointWriter:
 
     def __call__(self, sim):
         due = self.every_steps > 0 and sim.step_count % self.every_steps == 0
-        if not due and self.every_seconds > 0 and sim.step_count % 10 == 0:
+        if not due and self.every_seconds > 0 and sim.step_count % self.SECONDS_CHECK == 0:
             due = sim.comm.bcast(time.monotonic() - self.last_time >= self.every_seconds)
         if due:
             self.write(sim)

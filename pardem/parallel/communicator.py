@@ -29,20 +29,18 @@ class Communicator:
 
     def sum(self, values):
         """Element-wise sum over ranks of a float64 array (or scalar); same result on every rank."""
+        return self._allreduce(values, self._MPI.SUM)
+
+    def max_array(self, values):
+        """Element-wise maximum over ranks of a float64 array; same result on every rank."""
+        return self._allreduce(values, self._MPI.MAX)
+
+    def _allreduce(self, values, op):
         a = np.array(values, dtype=np.float64)   # a copy, C-contiguous, 0-d for a scalar
         if self.size == 1:
             return a
         out = np.empty_like(a)
-        self.comm.Allreduce(a, out, op=self._MPI.SUM)
-        return out
-
-    def max_array(self, values):
-        """Element-wise maximum over ranks of a float64 array; same result on every rank."""
-        a = np.array(values, dtype=np.float64)
-        if self.size == 1:
-            return a
-        out = np.empty_like(a)
-        self.comm.Allreduce(a, out, op=self._MPI.MAX)
+        self.comm.Allreduce(a, out, op=op)
         return out
 
     def min(self, value):
@@ -64,6 +62,14 @@ class Communicator:
 
     def bcast(self, obj, root=0):
         return self.comm.bcast(obj, root=root) if self.size > 1 else obj
+
+    def waitall(self, requests):
+        """Complete non-blocking point-to-point requests (``Isend``/``Irecv`` of ``self.comm``)."""
+        self._MPI.Request.Waitall(requests)
+
+    def split_self(self):
+        """A communicator of this rank alone (independent cases of a task farm)."""
+        return Communicator(self._MPI.COMM_SELF)
 
     def barrier(self):
         if self.size > 1:

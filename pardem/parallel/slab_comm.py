@@ -31,6 +31,7 @@ short way round; with two ranks, the single neighbour gets the union of both bou
 (the neighbour list finds the right periodic image by itself).
 """
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -66,6 +67,26 @@ def _unpack_forward(buf, start, x, v, w, q):
             w[r, d] = buf[k, 6 + d]
         for d in range(4):
             q[r, d] = buf[k, 9 + d]
+
+
+@dataclass
+class SlabUpdate:
+    """What ``SlabComm.update`` did: the rank's elements and bonds after it (new objects after a
+    rebuild), whether it rebuilt the ghosts (and contact list), and whether some rank blew up."""
+    elements: Elements
+    bonds: Bonds
+    rebuilt: bool
+    unstable: bool
+
+
+def rank_report(rank, elements, bonds, seconds_computing, seconds_communicating=0.0, rebuilds=0,
+                rebalances=0):
+    """One rank's row of the per-rank table of a run summary (plain numbers)."""
+    return {"rank": int(rank), "owned_elements": int(elements.n_owned),
+            "ghost_elements": int(elements.n_total - elements.n_owned), "bonds_held": int(bonds.n),
+            "seconds_computing": float(seconds_computing),
+            "seconds_communicating": float(seconds_communicating),
+            "rebuilds": int(rebuilds), "rebalances": int(rebalances)}
 
 
 def _select(arrays, rows):
@@ -277,76 +298,78 @@ class SlabComm:
             if len(self.send_rows[nb]):
                 _pack_forward(e.x, e.v, e.w, e.q, self.send_rows[nb], self._send_buf[nb])
                 reqs.append(self.mpi.Isend(self._send_buf[nb], dest=nb, tag=_TAG_FORWARD))
-        self.comm._MPI.Request.Waitall(reqs)
+        self.comm.waitall(reqs)
         for nb in self.neighbours:
             if self.recv_count[nb]:
                 _unpack_forward(self._recv_buf[nb], self.recv_start[nb], e.x, e.v, e.w, e.q)
         e.refresh_rotations(e.n_owned, e.n_total)
 
-    def update(self, sim):
-        """Called by ``Simulation.step`` after the drift: rebuild (and rebalance) or refresh ghosts."""
+    def update(self, step, elements, bonds, contacts=None, pairs_freed=False, unstable=False,
+               seconds_computing=0.0):
+        """After the drift of ``step``: rebuild (and rebalance) or refresh the ghosts. Collective.
+
+        ``contacts``: the rank's ``Contacts`` (rebuilt here with the histories that travelled);
+        ``pairs_freed``: a bond broke on this rank since the last rebuild; ``unstable``: this rank
+        blew up (every rank then stops together instead of rebuilding around NaN positions);
+        ``seconds_computing``: this rank's kernel seconds so far (time-based balance).
+        Returns ``SlabUpdate``: the (possibly new) elements and bonds, and what happened.
+        """
         t0 = time.perf_counter()
-        e = sim.elements
-        rebalance = self.balance_every > 0 and sim.step_count % self.balance_every == 0 and self._unbalanced(sim)
-        # a blown-up rank reports an infinite displacement: every rank then stops together here,
-        # instead of trying to rebuild ghost layers around NaN positions
-        moved = np.inf if sim.unstable else max_displacement2(e.x, self.x_build, e.n_owned)
-        contacts = sim.contacts
+        e = elements
+        rebalance = (self.balance_every > 0 and step % self.balance_every == 0
+                     and self._unbalanced(e.n_owned, seconds_computing))
+        moved = np.inf if unstable else max_displacement2(e.x, self.x_build, e.n_owned)
         # a broken bond (on any rank) frees a pair for the contact list: rebuild it now
-        moved, freed = self.comm.max_array([moved, contacts is not None and sim.pairs_freed])
+        moved, freed = self.comm.max_array([moved, contacts is not None and pairs_freed])
         if not np.isfinite(moved):
-            sim.check_stability(force=True)
+            self.seconds_communicating += time.perf_counter() - t0
+            return SlabUpdate(elements, bonds, rebuilt=False, unstable=True)
         used = contacts.budget_used(moved) if contacts is not None else moved > (0.5 * self.skin) ** 2
-        if rebalance or used or freed:
+        rebuilt = bool(rebalance or used or freed)
+        if rebuilt:
             if self.cell is not None:
                 self.cell.wrap(e)
             if rebalance:
-                self._recut(sim)
+                self._recut(e, seconds_computing)
             try:
                 if contacts is None:
-                    sim.elements, sim.bonds = self.setup(e, sim.bonds)
+                    elements, bonds = self.setup(e, bonds)
                 else:
-                    sim.elements, sim.bonds, table = self.setup_with_pairs(e, sim.bonds, contacts.table())
-                    contacts.rebuild(sim.elements, sim.bonds, table)
-                    sim.pairs_freed = False
+                    elements, bonds, table = self.setup_with_pairs(e, bonds, contacts.table())
+                    contacts.rebuild(elements, bonds, table)
             except BondOutOfReach as err:
                 # during a run a bond stretched by a quarter of its length means the motion blew up
-                raise InstabilityError(f"at step {sim.step_count}: {err}") from None
+                raise InstabilityError(f"at step {step}: {err}") from None
             self.rebuilds += 1
         else:
             self.forward(e)
         self.seconds_communicating += time.perf_counter() - t0
+        return SlabUpdate(elements, bonds, rebuilt=rebuilt, unstable=False)
 
     # -- load balance -------------------------------------------------------------------------
 
-    def _loads(self, sim):
+    def _loads(self, n_owned, seconds_computing):
         if self.balance_by == "time":
-            busy = sim.seconds_computing - self._compute_mark
+            busy = seconds_computing - self._compute_mark
             return np.array(self.comm.allgather(busy))
-        return np.array(self.comm.allgather(sim.elements.n_owned), dtype=float)
+        return np.array(self.comm.allgather(n_owned), dtype=float)
 
-    def _unbalanced(self, sim):
-        loads = self._loads(sim)
+    def _unbalanced(self, n_owned, seconds_computing):
+        loads = self._loads(n_owned, seconds_computing)
         self._last_loads = loads
         return imbalance(loads) > self.threshold
 
-    def _recut(self, sim):
-        e = sim.elements
+    def _recut(self, e, seconds_computing):
         n = e.n_owned
         weights = None
         if self.balance_by == "time":
             per_element = self._last_loads[self.comm.rank] / max(n, 1)
             weights = np.full(n, per_element)
         self.slabs = Slabs.balanced(self.comm, self.slabs.axis, e.x[:n, self.slabs.axis], e.gid[:n], weights)
-        self._compute_mark = sim.seconds_computing
+        self._compute_mark = seconds_computing
         self.rebalances += 1
 
-    def report(self, sim):
+    def report(self, elements, bonds, seconds_computing):
         """Per-rank table (list of dicts on every rank): owned, ghosts, computing and comm seconds."""
-        e = sim.elements
-        row = {"rank": self.comm.rank, "owned_elements": int(e.n_owned),
-               "ghost_elements": int(e.n_total - e.n_owned), "bonds_held": int(sim.bonds.n),
-               "seconds_computing": float(sim.seconds_computing),
-               "seconds_communicating": float(self.seconds_communicating),
-               "rebuilds": self.rebuilds, "rebalances": self.rebalances}
-        return self.comm.allgather(row)
+        return self.comm.allgather(rank_report(self.comm.rank, elements, bonds, seconds_computing,
+                                               self.seconds_communicating, self.rebuilds, self.rebalances))

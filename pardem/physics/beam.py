@@ -75,12 +75,22 @@ def densified_extension(dL, l0, ka, f_yield, p0, plastic, b):
     return ext
 
 
+# layout of ``beam_bond``'s ``out`` row (module constants: Numba compiles them in)
+OUT_FORCE_1 = 0     # [3] force on end 1 [N] (end 2 gets its opposite)
+OUT_MOMENT_1 = 3    # [3] moment on end 1 [N m]
+OUT_MOMENT_2 = 6    # [3] moment on end 2 [N m]
+OUT_AXIAL = 9       # axial force, tension positive [N] (damping included)
+OUT_SHEAR = 10      # shear force magnitude [N] (damping included)
+OUT_WIDTH = 11
+
+
 @njit(cache=True, inline="always", error_model="numpy")
 def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1, u2, p2, out,
               damped, densify=False, f_yield=None, plastic=None, p0=0.0):
-    """Force on end 1 and moments on ends 1 and 2 of bond ``b``; writes ``out`` [9] = (F1, M1, M2)
-    and, for the rupture test, ``out[9]`` = axial force (tension positive) and ``out[10]`` = shear
-    force magnitude [N] (both including damping).
+    """Force on end 1 and moments on ends 1 and 2 of bond ``b``; writes ``out`` [OUT_WIDTH]: F1, M1, M2
+    (``OUT_FORCE_1``, ``OUT_MOMENT_1``, ``OUT_MOMENT_2``) and, for the rupture test, the axial force
+    ``out[OUT_AXIAL]`` (tension positive) and the shear force magnitude ``out[OUT_SHEAR]`` [N]
+    (both including damping).
 
     ``damped`` and ``densify`` must be compile-time constants at the call site (True or False
     literals): a loop without them carries no trace of their terms. With ``densify``, a bond with
@@ -180,8 +190,8 @@ def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1
     out[0] = fa * n0 + fs * (n1 * g2 - n2 * g1)
     out[1] = fa * n1 + fs * (n2 * g0 - n0 * g2)
     out[2] = fa * n2 + fs * (n0 * g1 - n1 * g0)
-    out[9] = fa
-    out[10] = fs * np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)   # th_k are normal to n: |n x g| = |g|
+    out[OUT_AXIAL] = fa
+    out[OUT_SHEAR] = fs * np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)   # th_k are normal to n: |n x g| = |g|
     mt = kt[b] * tw
     out[3] = mt * n0 - kbL * (2.0 * t10 + t20)
     out[4] = mt * n1 - kbL * (2.0 * t11 + t21)
@@ -198,7 +208,7 @@ def _bond_loop(damped, breakable, densify):
     @njit(cache=True, error_model="numpy")
     def loop(bi, bj, x, v, w, rot, f, t, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1, u2, p2,
              state, f_tensile, f_shear, f_yield, plastic, p0, n_owned):
-        out = np.empty(11)
+        out = np.empty(OUT_WIDTH)
         energy = 0.0
         broken = 0
         counted = 0
@@ -211,7 +221,7 @@ def _bond_loop(damped, breakable, densify):
             e = beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t,
                           u1, p1, u2, p2, out, damped, densify, f_yield, plastic, p0)
             if breakable:
-                mode = rupture_mode(out[9], out[10], f_tensile[b], f_shear[b])
+                mode = rupture_mode(out[OUT_AXIAL], out[OUT_SHEAR], f_tensile[b], f_shear[b])
                 if mode != 0:
                     # a broken bond stops acting at once: its force of this step is not applied
                     state[b] = mode

@@ -52,8 +52,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from pardem.protocols.compression import SeriesSampler, build_case, measure
-from pardem.config import COMPRESS_SCHEMA, DeckError, check_deck, raw_deck
+from pardem.protocols.compression import SeriesSampler, build_case, measure, with_plate_speed
+from pardem.config import DeckError, check_deck, raw_deck
+from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.domains.compact import compact_packing
 from pardem.engine.errors import InstabilityError
 
@@ -202,7 +203,7 @@ def case_deck(deck, plan, case, plate_speed=None):
 
 def _slope_drift(case):
     """|s1/s2 - 1| of the force-strain slopes over the two halves of the phase ``measure`` fits."""
-    a = case.axis
+    a = case.constants.axis
     t = np.array([s["time"] for s in case.samples])
     eps = np.array([-s["eps"][a, a] for s in case.samples])
     F = np.array([0.5 * (s["force_fixed"] + s["force_moving"]) for s in case.samples])
@@ -217,7 +218,7 @@ def _slope_drift(case):
 
 def assess(case, result):
     """(status, diagnostics) of a finished compression; status ``ok`` or why it is not a modulus."""
-    a = case.axis
+    a = case.constants.axis
     last = case.samples[-1]
     H = np.asarray(last["H"])
     Ff, Fm = float(last["force_fixed"]), float(last["force_moving"])
@@ -269,10 +270,10 @@ def run_case(comm, deck, plan, case, packing=None):
     rec["seed"] = plan.base_seed + case.realisation if case.kind != "ordered" else None
     transits = plan.transits
     try:
-        probe = build_case(comm, case_deck(deck, plan, case), packing=packing)   # length, transit time
         for attempt in range(1, RETRIES + 2):
-            speed = probe.deck["loading"]["strain"] * probe.length / (transits * probe.transit_time)
-            run = build_case(comm, case_deck(deck, plan, case, plate_speed=speed), packing=packing)
+            probe = build_case(comm, case_deck(deck, plan, case), packing=packing)   # length, transit time
+            speed = probe.deck["loading"]["strain"] * probe.constants.length / (transits * probe.constants.transit_time)
+            run = with_plate_speed(probe, speed)
             every = run.deck["output"]["series_every"] or max(1, run.n_steps // 200)
             sampler = SeriesSampler(run, every)
             sampler(run.sim)
@@ -280,8 +281,8 @@ def run_case(comm, deck, plan, case, packing=None):
             result = measure(run)
             status, diag = assess(run, result)
             rec.update(E=result["young_modulus"], E_secant=result["young_modulus_secant"], status=status,
-                       attempts=attempt, steps=run.n_steps, n_elements=run.n_elements,
-                       n_bonds=run.n_bonds, plate_speed=speed, transits=transits, **diag)
+                       attempts=attempt, steps=run.n_steps, n_elements=run.constants.n_elements,
+                       n_bonds=run.constants.n_bonds, plate_speed=speed, transits=transits, **diag)
             if status != "dynamic":
                 break
             transits *= SLOWER
@@ -293,10 +294,20 @@ def run_case(comm, deck, plan, case, packing=None):
     return rec
 
 
-def run_study(comm, case_comm, deck, plan, progress=None, packings=None):
+def case_id(rec):
+    """The identity of a case (or of its record): kind, realisation, law, ratio, axis, tilt."""
+    return (rec["kind"], int(rec["realisation"]), rec["law"], float(rec["ratio"]), rec["axis"],
+            float(rec["tilt_deg"]))
+
+
+def run_study(comm, case_comm, deck, plan, progress=None, packings=None, finished=None, on_record=None):
     """Run the plan over the ranks of ``comm`` (each case on ``case_comm``); every record on rank 0
     (sorted by case), None elsewhere. ``progress(done, total, record)`` is called on rank 0 for its
-    own cases; ``packings`` maps (kind, realisation, axis) to packings this rank built already."""
+    own cases; ``packings`` maps (kind, realisation, axis) to packings this rank built already.
+    ``finished`` maps ``case_id`` to the records of a previous run of the same plan (a restart):
+    those cases are not run again. ``on_record(record)`` is called on the running rank after each
+    case it runs (e.g. to append it to this rank's record file)."""
+    finished = finished or {}
     groups = plan_cases(plan)
     mine = assign(groups, comm.size, plan)[comm.rank]
     total = sum(len(groups[g]) for g in mine)
@@ -305,6 +316,10 @@ def run_study(comm, case_comm, deck, plan, progress=None, packings=None):
     for g in mine:
         for case in groups[g]:
             key = (case.kind, case.realisation, case.axis)
+            if case_id(asdict(case)) in finished:
+                records.append(dict(finished[case_id(asdict(case))]))
+                done += 1
+                continue
             if key not in packings:
                 try:
                     packings[key] = realisation_packing(deck, plan, case)
@@ -317,6 +332,8 @@ def run_study(comm, case_comm, deck, plan, progress=None, packings=None):
                 rec = run_case(case_comm, deck, plan, case, packings[key])
             rec["rank"] = comm.rank
             records.append(rec)
+            if on_record is not None:
+                on_record(rec)
             done += 1
             if progress is not None and comm.is_root:
                 progress(done, total, rec)

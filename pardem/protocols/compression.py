@@ -3,14 +3,13 @@ measure the moduli. Used by the compress driver and by the tests; files are writ
 and the I/O layer.
 """
 import math
-import os
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
 from pardem.engine.bonding import BeamMaterial, make_bonds
-from pardem.config import DeckError, physics_differences
+from pardem.config import DeckError, check_deck, raw_deck
+from pardem.protocols.compression_deck import COMPRESS_SCHEMA, physics_differences, upgrade
 from pardem.io import checkpoint
 from pardem.io.checkpoint import BOND_DATASETS, CONTACT_DATASETS, ELEMENT_DATASETS
 from pardem.domains import compact
@@ -32,29 +31,63 @@ NEAR_PLATE_GAP = 0.5   # elements closer than this many radii to a plate at the 
 
 
 @dataclass
+class CompressionConstants:
+    """Every derived quantity a compression run depends on, computed once from the deck and stored
+    in checkpoints (``as_dict``), so that a restart reuses them exactly."""
+    dt: float                 # time step [s]
+    dt_critical: float        # critical step of bonds, plates and contacts [s]
+    plate_stiffness: float    # linear element-plate stiffness, or the Hertz bound's [N/m]
+    ramp_time: float          # smooth start of the moving plate [s]
+    wall_young: float         # Hertz walls: the elements' Young's modulus [Pa]
+    lateral_walls: list       # [[axis, position [m], normal sign], ...] of the fixed lateral walls
+    plate_low: float          # initial plate positions along the loading axis [m]
+    plate_high: float
+    axis: int                 # loading axis (0, 1, 2)
+    length: float             # initial plate gap [m]
+    cross_section: float      # initial section across the load [m^2]
+    transit_time: float       # axial wave crossing time [s]
+    analytic_young: float     # pi/4 E r^2 of an ordered lattice loaded along a lattice axis, or nan [Pa]
+    n_elements: int
+    n_bonds: int
+    origin: np.ndarray        # [3] origin of the strain fit [m]
+    slab_axis: int
+    ghost_range: float        # [m]
+    skin: float               # [m]
+    damped: bool              # bonds carry damping
+    breakable: bool = False   # bonds can break
+    densify_p0: float = 0.0   # densification p0 (0: elastic bonds)
+    contact_law: str = "none"
+    contact_params: dict = field(default_factory=dict)
+    contact_reach: float = 0.0   # [m]
+    domain_facts: dict = field(default_factory=dict)   # compact domains: solid fraction, coordination...
+
+    def as_dict(self):
+        """Flat JSON-able dict (the domain facts at the top level, as checkpoints store them)."""
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "domain_facts"}
+        return {**d, **self.domain_facts}
+
+    @classmethod
+    def from_dict(cls, d):
+        """From ``as_dict`` (a checkpoint's ``constants``); unknown keys are domain facts."""
+        names = {f.name for f in fields(cls)} - {"domain_facts"}
+        c = cls(**{k: v for k, v in d.items() if k in names},
+                domain_facts={k: v for k, v in d.items() if k not in names})
+        c.origin = np.asarray(c.origin, dtype=np.float64)
+        return c
+
+
+@dataclass
 class CompressionCase:
     """A compression test on this rank: the simulation, its reducer and the run constants.
 
-    ``constants`` holds every derived quantity the run depends on (time step, plate motion, ...),
-    computed once from the deck and stored in checkpoints, so that a restart reuses them exactly.
-    ``n_steps`` is the run's total step count from its start.
+    ``n_steps`` is the run's total step count from its start; ``samples`` the reducer's samples.
     """
     sim: Simulation
     reducer: Reducer
     deck: dict
-    constants: dict
+    constants: CompressionConstants
     n_steps: int
     samples: list = field(default_factory=list)
-
-    axis = property(lambda self: self.constants["axis"])
-    cross_section = property(lambda self: self.constants["cross_section"])   # initial [m^2]
-    length = property(lambda self: self.constants["length"])                 # initial plate gap [m]
-    dt_critical = property(lambda self: self.constants["dt_critical"])
-    analytic_young = property(lambda self: self.constants["analytic_young"])  # pi/4 E r^2 or nan
-    transit_time = property(lambda self: self.constants["transit_time"])     # axial wave crossing [s]
-    n_elements = property(lambda self: self.constants["n_elements"])
-    n_bonds = property(lambda self: self.constants["n_bonds"])
-    slab_axis = property(lambda self: self.constants["slab_axis"])
 
     @property
     def steps_left(self):
@@ -65,13 +98,15 @@ WALL_OVERLAP_BOUND = 0.05   # Hertz walls: the critical step holds up to this ov
 GHOST_STRETCH = 1.25   # bonds may stretch by 25 % before they would outgrow the ghost layer
 
 
-def build_case(comm, deck, steps=None, packing=None):
+def build_case(comm, deck, steps=None, packing=None, plates=True):
     """Elements, bonds, plates and time step of the deck's compression test on this rank.
 
     Every rank computes the lattice geometry (cheap), keeps its slab's elements and the bonds that
     touch them, then the slab layer builds the ghosts. A compact packing is built on rank 0 and
     broadcast, unless ``packing`` (a ``CompactPacking`` of this deck's domain, e.g. shared by the
-    cases of one realisation) is given. DeckError on a bad time step, split or domain.
+    cases of one realisation) is given. Without ``plates`` the domain is built alone (other tests
+    of the domain: the time step is the same, still bounded for plate contact).
+    DeckError on a bad time step, split or domain.
     """
     dom, bd, ld, run, par = deck["domain"], deck["bonds"], deck["loading"], deck["run"], deck["parallel"]
     axis = "xyz".index(ld["axis"])
@@ -136,7 +171,7 @@ def build_case(comm, deck, steps=None, packing=None):
                             densification_p0=bd["densification_p0"])
     bonds = make_bonds(elements, local_row[pairs[touch]], material, frame, gids=bond_gids[touch])
 
-    skin = 0.2 * R if par["skin"] == "auto" else par["skin"]
+    skin = 0.2 * R if run["skin"] == "auto" else run["skin"]
     contact_law, contact_params = _contact_law(comm, deck, bonds, elements, material)
     reach = 2.0 * float(radii.max()) + skin
     ghost_range = GHOST_STRETCH * comm.max(float(bonds.L0.max()) if bonds.n else 0.0) + skin
@@ -175,25 +210,41 @@ def build_case(comm, deck, steps=None, packing=None):
                             f"deck: expected a value in (0, {dt_c:.6g}] or \"auto\"")
     length = high - low
     transit = length / _wave_speed(comm, bonds, elements, axis)
-    ramp = ld["ramp_time"]
-    if ramp == "auto":
-        # two periods of the slowest axial mode, but at most half of the travel (the moduli are
-        # fitted over the constant-speed phase that follows)
-        ramp = min(4.0 * transit, ld["strain"] * length / ld["plate_speed"])
-    constants = {
-        "dt": dt, "dt_critical": dt_c, "plate_stiffness": k_plate, "ramp_time": ramp,
-        "wall_young": wall_young, "lateral_walls": lateral,
-        "plate_low": low, "plate_high": high, "axis": axis, "length": length,
-        "cross_section": float(extent[others[0]] * extent[others[1]]), "transit_time": transit,
-        "analytic_young": _analytic_young(bd, frame, axis) if dom["kind"] == "ordered" else float("nan"),
-        "n_elements": n_global,
-        "n_bonds": len(pairs), "origin": 0.5 * (pos.min(axis=0) + pos.max(axis=0)),
-        "slab_axis": slab_axis, "ghost_range": ghost_range, "skin": skin, "damped": bonds.damped,
-        "breakable": bonds.breakable, "densify_p0": bonds.densify_p0,
-        "contact_law": contact_law, "contact_params": contact_params, "contact_reach": reach,
-        **facts,
-    }
-    return _assemble(comm, deck, elements, bonds, domain, constants, steps, contacts=contacts)
+    ramp = _ramp_time(ld, length, transit)
+    constants = CompressionConstants(
+        dt=dt, dt_critical=dt_c, plate_stiffness=k_plate, ramp_time=ramp, wall_young=wall_young,
+        lateral_walls=lateral, plate_low=low, plate_high=high, axis=axis, length=length,
+        cross_section=float(extent[others[0]] * extent[others[1]]), transit_time=transit,
+        analytic_young=_analytic_young(bd, frame, axis) if dom["kind"] == "ordered" else float("nan"),
+        n_elements=n_global, n_bonds=len(pairs), origin=0.5 * (pos.min(axis=0) + pos.max(axis=0)),
+        slab_axis=slab_axis, ghost_range=ghost_range, skin=skin, damped=bonds.damped,
+        breakable=bonds.breakable, densify_p0=bonds.densify_p0, contact_law=contact_law,
+        contact_params=contact_params, contact_reach=reach, domain_facts=facts)
+    return _assemble(comm, deck, elements, bonds, domain, constants, steps, contacts=contacts,
+                     with_plates=plates)
+
+
+def _ramp_time(loading, length, transit):
+    """The moving plate's ramp [s]: the deck's, or "auto": two periods of the slowest axial mode,
+    but at most half of the travel (the moduli are fitted over the constant-speed phase after it)."""
+    if loading["ramp_time"] != "auto":
+        return loading["ramp_time"]
+    return min(4.0 * transit, loading["strain"] * length / loading["plate_speed"])
+
+
+def with_plate_speed(case, speed):
+    """The freshly built ``case`` (step 0) loaded at plate speed ``speed`` [m/s] instead: deck, auto
+    ramp, plates and step count follow, exactly as if it had been built with that speed (the
+    elements, bonds and contacts are the same objects: run only the returned case)."""
+    sim = case.sim
+    if sim.step_count != 0:
+        raise ValueError(f"with_plate_speed: the case has run {sim.step_count} steps: expected a new case")
+    raw = raw_deck(case.deck)
+    raw["loading"]["plate_speed"] = float(speed)
+    deck = check_deck(COMPRESS_SCHEMA, raw)
+    c = replace(case.constants, ramp_time=_ramp_time(deck["loading"], case.constants.length,
+                                                     case.constants.transit_time))
+    return _assemble(sim.comm, deck, sim.elements, sim.bonds, sim.domain, c, None, contacts=sim.contacts)
 
 
 def _contact_law(comm, deck, bonds, elements, material):
@@ -291,22 +342,27 @@ def _slab_comm(comm, slabs, ghost_range, skin, par):
                     threshold=par["balance_threshold"], balance_by=par["balance_by"])
 
 
-def _assemble(comm, deck, elements, bonds, domain, constants, steps, step=0, samples=(), contacts=None):
-    """The case from its state and constants; ``steps`` = total steps from the run's start."""
+def _assemble(comm, deck, elements, bonds, domain, constants, steps, step=0, samples=(), contacts=None,
+              with_plates=True):
+    """The case from its state and constants; ``steps`` = total steps from the run's start (from
+    the plate travel when None; 0 without plates)."""
     c = constants
     ld = deck["loading"]
-    law = _wall_law(deck["plates"], c["plate_stiffness"], c["wall_young"])
-    plates = Plates.pair(c["axis"], c["plate_low"], c["plate_high"], ld["plate_speed"],
-                         c["plate_stiffness"], c["ramp_time"], law=law, lateral=c["lateral_walls"])
-    if steps is None:
-        t_end = plates.time_to_travel(ld["strain"] * c["length"])
-        steps = max(1, math.ceil(t_end / c["dt"] - 1e-9))
-    sim = Simulation(comm, elements, bonds, plates, c["dt"], domain=domain, contacts=contacts)
+    plates = None
+    if with_plates:
+        law = _wall_law(deck["plates"], c.plate_stiffness, c.wall_young)
+        plates = Plates.pair(c.axis, c.plate_low, c.plate_high, ld["plate_speed"],
+                             c.plate_stiffness, c.ramp_time, law=law, lateral=c.lateral_walls)
+        if steps is None:
+            t_end = plates.time_to_travel(ld["strain"] * c.length)
+            steps = max(1, math.ceil(t_end / c.dt - 1e-9))
+    sim = Simulation(comm, elements, bonds, plates, c.dt, domain=domain, contacts=contacts)
     sim.step_count = int(step)
     sim.time = sim.step_count * sim.dt
-    plates.move_to(sim.time)
-    reducer = Reducer(comm, origin=c["origin"])
-    return CompressionCase(sim=sim, reducer=reducer, deck=deck, constants=c, n_steps=int(steps),
+    if plates is not None:
+        plates.move_to(sim.time)
+    reducer = Reducer(comm, origin=c.origin)
+    return CompressionCase(sim=sim, reducer=reducer, deck=deck, constants=c, n_steps=int(steps or 0),
                            samples=list(samples))
 
 
@@ -328,9 +384,9 @@ def checkpoint_payload(case):
                               "history": c.history}
     series = samples_to_columns(case.samples)
     slabs = sim.domain.slabs if sim.domain is not None else None
-    attrs = {"step": sim.step_count, "time": sim.time, "deck": case.deck, "constants": case.constants,
+    attrs = {"step": sim.step_count, "time": sim.time, "deck": case.deck, "constants": case.constants.as_dict(),
              "plate_positions": sim.plates.positions.copy(), "plate_velocities": sim.plates.velocities(sim.time),
-             "rng_state": {"generator": None}, "slab_axis": case.slab_axis,
+             "rng_state": {"generator": None}, "slab_axis": case.constants.slab_axis,
              # a bond broke in the last step: the contact list is rebuilt at the next one
              "pairs_freed": int(sim.comm.any(sim.pairs_freed)),
              "slab_cut_s": slabs.cut_s if slabs is not None else np.zeros(0),
@@ -373,16 +429,15 @@ def restore_case(comm, deck, path, steps=None):
     if steps is not None and steps < int(meta["step"]):
         raise DeckError(f"--steps {steps} is before the checkpoint's step {int(meta['step'])}: --steps "
                         f"counts the run's total steps from its start")
-    diffs = physics_differences(meta["deck"], deck)
+    diffs = physics_differences(upgrade(meta["deck"]), deck)
     if diffs:
         name, old, new = diffs[0]
         raise DeckError(f"{name} = {new!r} differs from the checkpoint's {old!r}: a restart may change "
                         f"only the run length (loading.strain, --steps) and the output, checkpoint and "
                         f"parallel settings")
-    c = meta["constants"]
-    c["origin"] = np.asarray(c["origin"])
+    c = CompressionConstants.from_dict(meta["constants"])
     par = deck["parallel"]
-    slab_axis = c["slab_axis"] if par["slab_axis"] == "auto" else "xyz".index(par["slab_axis"])
+    slab_axis = c.slab_axis if par["slab_axis"] == "auto" else "xyz".index(par["slab_axis"])
     same = int(meta["n_ranks"]) == comm.size and slab_axis == int(meta["slab_axis"])
     names = list(ELEMENT_DATASETS) + (["wall_h"] if checkpoint.has_dataset(path, "elements/wall_h") else [])
     if same:
@@ -404,11 +459,10 @@ def restore_case(comm, deck, path, steps=None):
     el["inv_mass"] = 1.0 / el["mass"]
     el["inv_inertia"] = 1.0 / el["inertia"]
     elements = Elements.unpack([el], n, copy=False)
-    bonds = Bonds.unpack([bd], bool(c["damped"]), copy=False, breakable=c.get("breakable", False),
-                         densify_p0=c.get("densify_p0", 0.0))
-    domain = _slab_comm(comm, slabs, c["ghost_range"], c["skin"], par)
-    law = c.get("contact_law", "none")
-    contacts = _contacts(law, c.get("contact_params", {}), c["skin"], c.get("contact_reach", 0.0))
+    bonds = Bonds.unpack([bd], bool(c.damped), copy=False, breakable=c.breakable,
+                         densify_p0=c.densify_p0)
+    domain = _slab_comm(comm, slabs, c.ghost_range, c.skin, par)
+    contacts = _contacts(c.contact_law, c.contact_params, c.skin, c.contact_reach)
     if contacts is not None:
         cl = checkpoint.read_rows(path, "contacts", list(CONTACT_DATASETS), slice(0, None))
     if same and domain is None:
@@ -416,7 +470,7 @@ def restore_case(comm, deck, path, steps=None):
         if contacts is not None:
             _restore_contacts(comm, contacts, elements, cl, x_build=el["x_build"])
     elif same:
-        elements, bonds = domain.borders(elements, bonds, extra=c["skin"] if contacts is not None else 0.0)
+        elements, bonds = domain.borders(elements, bonds, extra=c.skin if contacts is not None else 0.0)
         domain.x_build = el["x_build"].copy()    # same rebuild steps as the uninterrupted run
         if contacts is not None:
             _restore_contacts(comm, contacts, elements, _this_ranks_block(meta, cl, comm.rank))
@@ -500,10 +554,10 @@ QUASI_STATIC_TRANSITS = 4.0   # loading shorter than this many wave transits is 
 def loading_warning(case):
     """A warning line when the loading is too fast to be quasi-static, else None."""
     duration = case.n_steps * case.sim.dt
-    ratio = duration / case.transit_time
+    ratio = duration / case.constants.transit_time
     if ratio >= QUASI_STATIC_TRANSITS:
         return None
-    return (f"warning: the loading lasts {duration:.3g} s, only {ratio:.2g} times the {case.transit_time:.3g} s "
+    return (f"warning: the loading lasts {duration:.3g} s, only {ratio:.2g} times the {case.constants.transit_time:.3g} s "
             f"an axial wave takes to cross the domain: the response is dynamic, not quasi-static; "
             f"lower loading.plate_speed by a factor {QUASI_STATIC_TRANSITS / ratio:.2g} or more")
 
@@ -525,33 +579,7 @@ class SeriesSampler:
             sink(s)
 
 
-class Progress:
-    """Sink printing one progress line every ``seconds`` (rank 0 only)."""
-
-    def __init__(self, case, n_elements, seconds, stream):
-        self.case = case
-        self.n_elements = n_elements
-        self.seconds = seconds
-        self.stream = stream
-        self.t0 = time.perf_counter()
-        self.last = -math.inf
-        self.start = case.sim.step_count
-        self.end = case.n_steps
-
-    def __call__(self, s):
-        now = time.perf_counter()
-        if now - self.last < self.seconds and s["step"] < self.end:
-            return
-        self.last = now
-        done = s["step"] - self.start
-        rate = done * self.n_elements / max(now - self.t0, 1e-9)
-        eta = f"{(self.end - s['step']) * self.n_elements / rate:6.1f} s" if rate > 0 else "    -- "
-        eps = s["eps"][self.case.axis, self.case.axis]
-        self.stream.write(
-            f"step {s['step']:>8d}/{self.end} ({100.0 * done / max(self.end - self.start, 1):5.1f} %)  "
-            f"t = {s['time']:.4e} s  eps = {eps:+.4e}  F = {s['force_fixed']:.4e} N  "
-            f"{rate:.3e} element-steps/s  ETA {eta}\n")
-        self.stream.flush()
+MIN_FIT_SAMPLES = 3   # samples after the ramp needed to fit the quasi-static modulus
 
 
 def measure(case):
@@ -566,21 +594,22 @@ def measure(case):
     ``peak_stress`` [Pa] is the largest fixed-plate force over the section, at ``strain_at_peak``
     (axial strain, compression positive).
     """
-    a = case.axis
+    a = case.constants.axis
     last = case.samples[-1]
-    E_sec, nus = young_and_poisson(last["eps"], last["force_fixed"], a, case.cross_section)
+    E_sec, nus = young_and_poisson(last["eps"], last["force_fixed"], a, case.constants.cross_section)
     t = np.array([s["time"] for s in case.samples])
     eps = np.array([-s["eps"][a, a] for s in case.samples])
     F = np.array([0.5 * (s["force_fixed"] + s["force_moving"]) for s in case.samples])
     keep = t >= case.sim.plates.ramp_time
-    if keep.sum() >= 3 and np.ptp(eps[keep]) > 0:
-        E_tan = float(np.polyfit(eps[keep], F[keep], 1)[0] / case.cross_section)
+    if keep.sum() >= MIN_FIT_SAMPLES and np.ptp(eps[keep]) > 0:
+        E_tan = float(np.polyfit(eps[keep], F[keep], 1)[0] / case.constants.cross_section)
     else:
         E_tan = float("nan")
     peak = int(np.argmax([s["force_fixed"] for s in case.samples]))
     return {"young_modulus": E_tan, "young_modulus_secant": E_sec, "poisson_ratios": nus,
             "strain_tensor": last["eps"], "plate_force": last["force_fixed"],
             "plate_force_moving": last["force_moving"],
-            "peak_stress": case.samples[peak]["force_fixed"] / case.cross_section,
+            "peak_stress": case.samples[peak]["force_fixed"] / case.constants.cross_section,
             "strain_at_peak": float(eps[peak]),
-            "bonds_broken": last["bonds_broken"], "bonds_yielded": last["bonds_yielded"]}
+            "bonds_broken": last["bonds_broken"], "bonds_yielded": last["bonds_yielded"],
+            "samples_after_ramp": int(keep.sum())}

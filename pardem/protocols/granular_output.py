@@ -10,74 +10,39 @@ A protocol keeps its own state (stage, counters, results so far) in a JSON-frien
 checkpoint stores it as the root attribute ``protocol`` next to the granular case
 (``pardem.engine.granular.checkpoint_payload``), and the series rows so far in ``/series``.
 """
-import datetime
 import json
 import os
 
 import numpy as np
 
-from pardem.config import DeckError, Field, boolean, choice, number
+from pardem.config import DeckError, restart_differences
 from pardem.engine import granular
 from pardem.io import checkpoint
-from pardem.io.checkpoint_writer import CheckpointWriter
+from pardem.io.checkpoint_writer import DECK_SECTION, CheckpointWriter
 from pardem.io.paraview import ParaViewWriter
 from pardem.io.series import SeriesCSV, dict_row
 from pardem.io.series_h5 import SeriesH5
 
-# the [checkpoint] section: the names and meaning of compress's (pardem.config.COMPRESS_SCHEMA)
-CHECKPOINT_SECTION = {
-    "every_steps": Field(0, number(lo=0, lo_open=False, integer=True), "steps between checkpoints; 0 = off"),
-    "every_seconds": Field(1800.0, number(lo=0.0, lo_open=False),
-                           "wall seconds between checkpoints; 0 = off"),
-    "keep": Field(3, number(lo=1, lo_open=False, integer=True), "how many checkpoints to keep"),
-    "at_end": Field(True, boolean, "write a checkpoint when the run ends (also when --steps stops it)"),
-    "driver": Field("auto", choice("auto", "mpio", "serial"),
-                    "HDF5 writing: \"mpio\" (collective MPI-IO), \"serial\" (ranks take turns) or "
-                    "\"auto\" (mpio when h5py is built with MPI)"),
-}
+CHECKPOINT_SECTION = DECK_SECTION   # the [checkpoint] section, shared with compress
 
 STEPS_HELP = ("stop the run at step N, counted from its start over all stages, and write a checkpoint "
               "to continue from with --restart (default: run the protocol to its end)")
+
+
+def restart_help(may_change):
+    """The --restart help of a granular driver whose restart may change the keys ``may_change``."""
+    return ("continue the run of this checkpoint; its deck is used unless --config is given, and --set "
+            "may change only " + ", ".join(may_change) + " and the [output] and [checkpoint] keys")
 
 
 class StepLimit(Exception):
     """The run reached its ``--steps`` limit (not an error: the driver checkpoints and stops)."""
 
 
-def default_out(comm, driver, restart):
-    """``runs/<driver>-<timestamp>``, or the run directory of the checkpoint being continued."""
-    if restart:
-        parent = os.path.dirname(os.path.abspath(restart))
-        if os.path.basename(parent) == "checkpoints":
-            return os.path.dirname(parent)
-    stamp = comm.bcast(datetime.datetime.now().strftime("%Y%m%d-%H%M%S"))
-    return os.path.join("runs", f"{driver}-{stamp}")
-
-
 def deck_differences(old, new, schema, may_change=(), may_change_sections=("output", "checkpoint")):
     """``(section.key, old, new)`` of the keys whose values differ between two checked decks and
-    may not on restart (the policy of ``pardem.config.physics_differences``, for any schema: a key
-    missing from the old deck counts as its default)."""
-    out = []
-    for section, table in new.items():
-        if section in may_change_sections:
-            continue
-        for key, value in table.items():
-            name = f"{section}.{key}"
-            if name in may_change:
-                continue
-            if key in old.get(section, {}):
-                before = old[section][key]
-            else:
-                f = schema.get(section, {}).get(key)
-                before = None if f is None else f.default
-            if _plain(before) != _plain(value):
-                out.append((name, before, value))
-    return out
-
-
-def _plain(v):
-    return [_plain(x) for x in v] if isinstance(v, (list, tuple)) else v
+    may not on restart (``pardem.config.restart_differences`` with these drivers' default sections)."""
+    return restart_differences(schema, old, new, may_change, may_change_sections)
 
 
 def inspect_restart(path, driver):

@@ -42,7 +42,8 @@ import numpy as np
 
 from pardem.protocols.calibration import SHEAR_PLANES, as_lrt, lattice_shear_modulus
 from pardem.protocols.compression import build_case
-from pardem.config import COMPRESS_SCHEMA, DeckError, check_deck, raw_deck
+from pardem.config import DeckError, check_deck, raw_deck
+from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.engine.reducer import gradient_from_sums, strain_sums
 from pardem.engine.state import FLAG_NEAR_PLATE
 
@@ -134,9 +135,8 @@ def run_shear(comm, deck, plane="LT", strain=0.002, transits=8.0, shear_estimate
         raise ValueError(f"plane {plane!r}, drive {drive!r}: expected one of {', '.join(SHEAR_PLANES)} and "
                          f"'faces' or 'layers'")
     a, b = SHEAR_PLANES[plane]
-    case = build_case(comm, shear_deck(deck, plane))
+    case = build_case(comm, shear_deck(deck, plane), plates=False)
     sim = case.sim
-    sim.plates = None                # the plates of the compression case are not used
     e = sim.elements
     R = deck["domain"]["radius"]
     n_tot = e.n_total
@@ -169,7 +169,7 @@ def run_shear(comm, deck, plane="LT", strain=0.002, transits=8.0, shear_estimate
     rate = strain / (duration - 0.5 * ramp)
     n_steps = max(1, math.ceil(duration / sim.dt - 1e-9))
     mover = ShearDrive(a, b, centre_b, rate, ramp, turn=drive == "faces")
-    sampler = ShearSampler(comm, a, b, plane_b, area, case.constants["origin"], max(1, n_steps // 200))
+    sampler = ShearSampler(comm, a, b, plane_b, area, case.constants.origin, max(1, n_steps // 200))
     mover(sim)
     sampler(sim)
     sim.run(n_steps, operations=[mover, sampler])

@@ -34,7 +34,6 @@ from pardem.engine import cement as cementing
 from pardem.engine import granular
 from pardem.config import Field, auto_or, boolean, choice, number, positive
 from pardem.engine.periodic_cell import PeriodicCell
-from pardem.engine.errors import InstabilityError  # noqa: F401  (re-exported for the driver)
 from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit
 
 AXES = "xyz"

@@ -12,7 +12,8 @@ import sys
 import numpy as np
 
 from pardem.protocols.compression import build_case
-from pardem.config import COMPRESS_SCHEMA, check_deck
+from pardem.config import check_deck
+from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.parallel.communicator import Communicator
 
 out_path, steps = sys.argv[1], int(sys.argv[2])
@@ -20,7 +21,8 @@ comm = Communicator()
 deck = check_deck(COMPRESS_SCHEMA, {
     "domain": {"box": [0.006, 0.004, 0.004], "radius": 0.25e-3},
     "loading": {"plate_speed": 2.0, "strain": 0.02, "ramp_time": 0.0},
-    "parallel": {"slab_axis": "x", "skin": 0.01e-3},
+    "parallel": {"slab_axis": "x"},
+    "run": {"skin": 0.01e-3},
 })
 case = build_case(comm, deck)
 sim = case.sim
@@ -44,9 +46,10 @@ def check_ghosts(s):
 update = sim.domain.update
 
 
-def update_then_check(s):
-    update(s)
-    check_ghosts(s)
+def update_then_check(*args, **kwargs):
+    result = update(*args, **kwargs)
+    check_ghosts(result)   # the rows after this update (new ones after a rebuild)
+    return result
 
 
 sim.domain.update = update_then_check

@@ -12,7 +12,8 @@ import sys
 import numpy as np
 
 from pardem.protocols.compression import build_case
-from pardem.config import COMPRESS_SCHEMA, check_deck
+from pardem.config import check_deck
+from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.io.paraview import ParaViewWriter
 from pardem.parallel.communicator import Communicator
 
@@ -27,7 +28,8 @@ deck = check_deck(COMPRESS_SCHEMA, {
     "bonds": {"young": 1e8, "radius_ratio": 0.5, "damping": 0.1},
     "loading": {"plate_speed": 2.0, "strain": 0.02, "ramp_time": 0.0},
     # slabs along the load and a tiny skin: the ghost layers are rebuilt between snapshots
-    "parallel": {"slab_axis": "x", "skin": 0.002e-3},
+    "parallel": {"slab_axis": "x"},
+    "run": {"skin": 0.002e-3},
 })
 case = build_case(comm, deck)
 sim = case.sim
@@ -40,5 +42,5 @@ np.savez(os.path.join(out, f"state-r{comm.rank:04d}.npz"), gid=e.gid[:n], x=e.x[
 if comm.is_root:
     with open(os.path.join(out, "run.json"), "w") as fh:
         json.dump({"ranks": comm.size, "k": K, "radius": R, "young": 1e8, "radius_ratio": 0.5,
-                   "n_elements": case.n_elements, "n_bonds": case.n_bonds, "dt": sim.dt,
+                   "n_elements": case.constants.n_elements, "n_bonds": case.constants.n_bonds, "dt": sim.dt,
                    "steps": list(range(EVERY, STEPS + 1, EVERY)), "last_step": sim.step_count}, fh)
