@@ -9,10 +9,9 @@ the recipe of one step (ARCHITECTURE.md repeats it). Around the steps, ``run`` c
   whose count is a multiple of their ``every`` (the trigger), in list order (``sim.operations``
   first, then those given to ``run``), and once more at the end of every ``run``.
 """
-from typing import Protocol
-
 import os
 import time as _time
+from typing import Protocol
 
 import numpy as np
 
