@@ -55,7 +55,7 @@ def main():
         N = n**3
         row = {"n": n, "elements": N, "ranks": comm.size, "steps": args.steps, "dt": DT,
                "pairs_listed": int(comm.sum(len(sim.contacts.i))),
-               "contacts": int(comm.sum(sim.contacts.sums[9])),
+               "contacts": int(comm.sum(sim.contacts.n_touching)),
                "seconds": wall, "seconds_per_step": wall / args.steps,
                "element_steps_per_second": N * args.steps / wall,
                "communication_share": float(comm.max(comm_s)) / wall,

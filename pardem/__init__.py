@@ -20,6 +20,10 @@ A cantilever of 11 spheres, clamped at one end and loaded at the other::
     pardem.add_fixes(sim, pardem.Clamp([0]), pardem.ExternalForce([n - 1], force=(0, 0, -1e-3)))
     sim.run(30000, operations=[pardem.Log(every=10000)])
 
+Checkpoints of such a system: ``pardem.save(sim, "state.h5")`` (collective) and
+``sim = pardem.load(comm, "state.h5")`` on any number of ranks (bit for bit on the rank count that
+wrote it); fixes and operations are the script's objects: add them again after ``load``.
+
 See ``examples/`` (cantilever, drop on a wall, compression test written with the API).
 
 Names are imported on first use (PEP 562), so ``import pardem`` itself is cheap and compiles
@@ -56,6 +60,8 @@ _EXPORTS = {
     "compact_packing": ("pardem.domains.compact", "compact_packing"),
     "compact_domain": ("pardem.domains.compact", "compact_domain"),
     "lrt_frame": ("pardem.physics.anisotropy", "lrt_frame"),
+    "save": ("pardem.engine.snapshot", "write"),
+    "load": ("pardem.engine.snapshot", "load"),
     "granular_build": ("pardem.engine.granular", "build"),
     "granular_write": ("pardem.engine.granular", "write"),
     "granular_restore": ("pardem.engine.granular", "restore"),

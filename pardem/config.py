@@ -5,6 +5,9 @@ line naming the field and the values it allows; drivers print it and exit with s
 """
 import copy
 import math
+import os
+import stat
+import sys
 import tomllib
 from dataclasses import dataclass
 from typing import Any, Callable
@@ -12,6 +15,29 @@ from typing import Any, Callable
 
 class DeckError(ValueError):
     """A deck field is unknown, of the wrong type or out of range."""
+
+
+class Schema(dict):
+    """A deck schema ``{section: {key: Field}}`` with cross-field checks.
+
+    ``checks``: functions ``check(deck)`` of a deck whose every field passed its own checker;
+    each raises ``DeckError`` (one line naming the keys) for a combination that cannot run
+    (memory, run length, derived magnitudes). ``check_deck`` runs them in order after the fields,
+    so every caller of ``load_deck`` / ``check_deck`` gets them. A plain dict is a schema without
+    checks; ``add_checks`` appends to a ``Schema``.
+    """
+
+    def __init__(self, sections=(), checks=()):
+        super().__init__(sections)
+        self.checks = tuple(checks)
+
+    def add_checks(self, *checks):
+        self.checks = self.checks + tuple(checks)
+        return self
+
+
+INT64_MAX = 2**63 - 1      # integer keys end up in numpy int64 arithmetic
+DOUBLE_MIN = sys.float_info.min   # smallest normal double: below it a number has lost precision
 
 
 @dataclass(frozen=True)
@@ -23,11 +49,19 @@ class Field:
 
 
 def _is_number(v):
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    """A finite int or float (not a bool); an int beyond the doubles' range is not a number."""
+    if isinstance(v, bool):
+        return False
+    if isinstance(v, int):
+        return abs(v) <= sys.float_info.max
+    return isinstance(v, float) and math.isfinite(v)
 
 
 def number(lo=None, hi=None, lo_open=True, hi_open=True, integer=False):
-    """Checker for a number in an interval; ``None`` bounds are infinite."""
+    """Checker for a number in an interval; ``None`` bounds are infinite (integers: within int64).
+
+    Subnormal values (nonzero, below 2.2e-308 in magnitude) are refused: they carry fewer than 53
+    bits and overflow when inverted. ``check.bounds`` = (lo, hi, lo_open, hi_open, integer)."""
     lb = "(" if lo_open or lo is None else "["
     rb = ")" if hi_open or hi is None else "]"
     kind = "an integer" if integer else "a number"
@@ -35,16 +69,32 @@ def number(lo=None, hi=None, lo_open=True, hi_open=True, integer=False):
 
     def check(name, v):
         if integer and not (isinstance(v, int) and not isinstance(v, bool)):
-            raise DeckError(f"{name} = {v!r}: expected {allowed}")
+            raise DeckError(f"{name} = {_short(v)}: expected {allowed}")
         if not _is_number(v):
-            raise DeckError(f"{name} = {v!r}: expected {allowed}")
+            raise DeckError(f"{name} = {_short(v)}: expected {allowed}")
         bad_lo = lo is not None and (v <= lo if lo_open else v < lo)
         bad_hi = hi is not None and (v >= hi if hi_open else v > hi)
         if bad_lo or bad_hi:
-            raise DeckError(f"{name} = {v!r} is out of range: expected {allowed}")
+            raise DeckError(f"{name} = {_short(v)} is out of range: expected {allowed}")
+        if integer and abs(v) > INT64_MAX:
+            raise DeckError(f"{name} = {_short(v)} is too large: expected {allowed}, within 64-bit "
+                            f"integers (|value| < 2^63)")
+        if not integer and v != 0 and abs(v) < DOUBLE_MIN:
+            raise DeckError(f"{name} = {v!r} is a subnormal number (below {DOUBLE_MIN:.4g} in magnitude, "
+                            f"less than double precision): expected {allowed}, not subnormal")
         return int(v) if integer else float(v)
     check.allowed = allowed
+    check.bounds = (lo, hi, lo_open, hi_open, integer)
     return check
+
+
+def _short(v, limit=80):
+    """``repr(v)`` cut to ``limit`` characters (a huge integer or list must not flood the line)."""
+    try:
+        r = repr(v).replace("\n", " ")
+    except ValueError:   # an integer of more digits than Python converts to text
+        return "an integer of more than 4300 digits"
+    return r if len(r) <= limit else r[:limit - 5] + "[...]"
 
 
 def positive():
@@ -56,9 +106,10 @@ def number_or_triple(inner):
     def check(name, v):
         if isinstance(v, list):
             if len(v) != 3:
-                raise DeckError(f"{name} = {v!r}: expected one number or a list of 3 ({inner.allowed})")
+                raise DeckError(f"{name} = {_short(v)}: expected one number or a list of 3 ({inner.allowed})")
             return tuple(inner(f"{name}[{k}]", x) for k, x in enumerate(v))
         return inner(name, v)
+    check.inner = inner
     return check
 
 
@@ -69,11 +120,11 @@ def strength():
     def check(name, v):
         if isinstance(v, list):
             if len(v) != 3:
-                raise DeckError(f"{name} = {v!r}: expected one number >= 0 or a list of 3 numbers > 0 "
+                raise DeckError(f"{name} = {_short(v)}: expected one number >= 0 or a list of 3 numbers > 0 "
                                 f"(L, R, T)")
             vals = tuple(inner(f"{name}[{k}]", x) for k, x in enumerate(v))
             if min(vals) == 0.0 and max(vals) > 0.0:
-                raise DeckError(f"{name} = {v!r}: expected all three values > 0, or the single number 0 "
+                raise DeckError(f"{name} = {_short(v)}: expected all three values > 0, or the single number 0 "
                                 f"for no threshold")
             return vals
         return inner(name, v)
@@ -89,8 +140,9 @@ def same_or(inner):
 def triple(inner):
     def check(name, v):
         if not isinstance(v, list) or len(v) != 3:
-            raise DeckError(f"{name} = {v!r}: expected a list of 3 numbers, each {inner.allowed}")
+            raise DeckError(f"{name} = {_short(v)}: expected a list of 3 numbers, each {inner.allowed}")
         return tuple(inner(f"{name}[{k}]", x) for k, x in enumerate(v))
+    check.inner = inner
     return check
 
 
@@ -100,7 +152,7 @@ def choice(*options, case_sensitive=False):
             for o in options:
                 if v == o or (not case_sensitive and v.lower() == o.lower()):
                     return o
-        raise DeckError(f"{name} = {v!r}: expected one of {', '.join(repr(o) for o in options)}")
+        raise DeckError(f"{name} = {_short(v)}: expected one of {', '.join(repr(o) for o in options)}")
     check.options = tuple(options)   # listed by ``describe`` (--help)
     return check
 
@@ -117,6 +169,7 @@ def word_or(word, inner, meaning=""):
             raise DeckError(f"{err} or \"{word}\"{f' ({meaning})' if meaning else ''}") from None
     if hasattr(inner, "options"):
         check.options = (word,) + tuple(inner.options)
+    check.inner = inner
     return check
 
 
@@ -129,9 +182,10 @@ def number_list(inner, min_len=1):
     """Checker for a list of at least ``min_len`` numbers, each passing ``inner``."""
     def check(name, v):
         if not isinstance(v, list) or len(v) < min_len:
-            raise DeckError(f"{name} = {v!r}: expected a list of at least {min_len} numbers, each "
+            raise DeckError(f"{name} = {_short(v)}: expected a list of at least {min_len} numbers, each "
                             f"{inner.allowed}")
         return [inner(f"{name}[{k}]", x) for k, x in enumerate(v)]
+    check.inner = inner
     return check
 
 
@@ -141,6 +195,7 @@ def optional(inner):
         if v is None or v == 0:
             return None
         return inner(name, v)
+    check.inner = inner
     return check
 
 
@@ -152,13 +207,13 @@ def fractions_or(word):
         if (isinstance(v, list) and all(_is_number(x) and 0 < x < 1 for x in v)
                 and all(a < b for a, b in zip(v, v[1:]))):
             return tuple(float(x) for x in v)
-        raise DeckError(f"{name} = {v!r}: expected \"{word}\" or an increasing list of fractions in (0, 1)")
+        raise DeckError(f"{name} = {_short(v)}: expected \"{word}\" or an increasing list of fractions in (0, 1)")
     return check
 
 
 def boolean(name, v):
     if not isinstance(v, bool):
-        raise DeckError(f"{name} = {v!r}: expected true or false")
+        raise DeckError(f"{name} = {_short(v)}: expected true or false")
     return v
 
 
@@ -207,47 +262,92 @@ def parse_override(text):
         value = tomllib.loads(f"v = {raw.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw.strip()
+    except ValueError:   # an integer of more than 4300 digits
+        raise DeckError(f"--set {path.strip()}=...: the value is an integer of more than 4300 digits") from None
     return section, key, value
 
 
-def load_deck(schema, path=None, overrides=(), base=None):
+def load_deck(schema, path=None, overrides=(), base=None, checks=()):
     """Read ``path`` (TOML, may be None; else start from the deck ``base``), apply overrides, check
-    every field; returns a nested dict."""
+    every field, then the schema's cross-field checks and ``checks`` (see ``check_deck``); returns a
+    nested dict. ``path`` must be a regular file: a FIFO, directory or device is refused without
+    opening it (opening a FIFO would block)."""
     raw = copy.deepcopy(base) if base is not None and path is None else {}
     if path is not None:
-        try:
-            with open(path, "rb") as fh:
-                raw = tomllib.load(fh)
-        except FileNotFoundError:
-            raise DeckError(f"--config {path}: no such file") from None
-        except (OSError, UnicodeDecodeError) as err:
-            raise DeckError(f"--config {path}: cannot be read ({err})") from None
-        except tomllib.TOMLDecodeError as err:
-            raise DeckError(f"--config {path}: not valid TOML ({err})") from None
+        raw = _read_toml(path)
     for text in overrides:
         section, key, value = parse_override(text)
         raw.setdefault(section, {})
         if not isinstance(raw[section], dict):
             raise DeckError(f"[{section}] must be a table")
         raw[section][key] = value
-    return check_deck(schema, raw)
+    return check_deck(schema, raw, checks)
 
 
-def check_deck(schema, raw):
+_FILE_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+               (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+               (stat.S_ISSOCK, "a socket"))
+
+
+def _read_toml(path):
+    """The TOML table of the regular file ``path``; DeckError (one line) for anything else."""
+    where = f"--config {path}"
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise DeckError(f"{where}: no such file") from None
+    except (OSError, ValueError) as err:   # ValueError: a path with a NUL byte
+        raise DeckError(f"{where}: cannot be read ({_one_line(err)})") from None
+    if not stat.S_ISREG(mode):
+        kind = next((text for test, text in _FILE_KINDS if test(mode)), "not a regular file")
+        raise DeckError(f"{where}: cannot be read: it is {kind}, expected a regular TOML file")
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except (OSError, UnicodeDecodeError) as err:
+        raise DeckError(f"{where}: cannot be read ({_one_line(err)})") from None
+    except tomllib.TOMLDecodeError as err:
+        raise DeckError(f"{where}: not valid TOML ({_one_line(err)})") from None
+    except ValueError as err:   # an integer of more than 4300 digits
+        raise DeckError(f"{where}: unreadable value ({_one_line(err)})") from None
+
+
+def _trim(name, limit=80):
+    """A deck name as written, on one line and at most ``limit`` characters."""
+    text = " ".join(str(name).split())
+    return text if len(text) <= limit else text[:limit - 5] + "[...]"
+
+
+def _one_line(err):
+    return " ".join(str(err).split())
+
+
+def check_deck(schema, raw, checks=()):
+    """The checked deck of the raw tables ``raw``: unknown sections and keys are refused, every
+    field passes its checker (defaults fill the rest), then the cross-field checks of the schema
+    (``Schema.checks``) and ``checks`` run on the checked deck. DeckError (one line) on failure."""
+    if not isinstance(raw, dict):
+        raise DeckError(f"the deck must be a table of sections, not {type(raw).__name__}")
     deck = defaults(schema)
     for section, table in raw.items():
         if section not in schema:
-            raise DeckError(f"unknown section [{section}]: allowed sections are {', '.join(schema)}")
+            raise DeckError(f"unknown section [{_trim(section)}]: allowed sections are {', '.join(schema)}")
         if not isinstance(table, dict):
             raise DeckError(f"[{section}] must be a table of keys")
         for key, value in table.items():
             if key not in schema[section]:
-                raise DeckError(f"unknown key {section}.{key}: allowed keys in [{section}] are "
+                raise DeckError(f"unknown key {section}.{_trim(key)}: allowed keys in [{section}] are "
                                 f"{', '.join(schema[section])}")
             deck[section][key] = value
     for section, fields in schema.items():
         for key, f in fields.items():
             deck[section][key] = f.check(f"{section}.{key}", deck[section][key])
+    for check in tuple(getattr(schema, "checks", ())) + tuple(checks):
+        try:
+            check(deck)
+        except ArithmeticError as err:   # a check's own arithmetic overflowed: still one line
+            raise DeckError(f"the deck's values overflow the checks of {check.__name__} "
+                            f"({_one_line(err)}): expected physically meaningful magnitudes") from None
     return deck
 
 

@@ -104,6 +104,9 @@ class FakeComm:
     def sum(self, values):
         return np.array(values, dtype=np.float64)
 
+    def max_array(self, values):
+        return np.array(values, dtype=np.float64)
+
     def max(self, value):
         return value
 
@@ -126,11 +129,11 @@ class FakeComm:
         pass
 
 
-EXIT_NOT_MEASURED = 4   # pardem.drivers.cli: the run ended but is too short to measure its result
+EXIT_NOT_MEASURED = 5   # pardem.drivers.cli: the run ended but is too short to measure its result
 
 
 def ran_to_end(p):
-    """A driver subprocess ran to its last step: exit 0, or exit 4 with the one line saying the run
+    """A driver subprocess ran to its last step: exit 0, or exit 5 with the one line saying the run
     was too short to measure (tests of checkpoints and restarts use short runs on purpose)."""
     return p.returncode == 0 or (p.returncode == EXIT_NOT_MEASURED and "too short to measure" in p.stderr
                                  and "Traceback" not in p.stderr)

@@ -4,12 +4,13 @@ Every law returns exactly E_L, E_R, E_T along the L, R, T axes (untilted and til
 depend on the direction only through |u.L|, |u.R|, |u.T| (u and -u, mirror images through the
 material planes give the same value); Hankinson's law matches its closed form at 45 degrees in each
 material plane; TOR picks the nearest axis (brute-force distance to +-axes); all four laws agree with an
-independent transcription of the docs/physics.md formulas at random directions.
+independent transcription of the docs/physics.md formulas at random directions, with unequal and
+equal triples; a scalar and an equal triple give bitwise the same values under every law.
 """
 import numpy as np
 import pytest
 
-from pardem.physics.anisotropy import LAWS, evaluate, lrt_frame
+from pardem.physics.anisotropy import INTERPOLATING, LAWS, direction_angles, evaluate, lrt_frame
 
 VALS = (1.1e10, 7.0e8, 4.0e8)     # E_L, E_R, E_T (beech-like ratios)
 TILTS = [0.0, 30.0, -45.0, 17.3, 90.0]
@@ -94,10 +95,12 @@ def _spec(law, u, frame, vL, vR, vT):
         return vL + (vR - vL) * theta / h + (vT - vR) * theta * phi / h**2
     if law == "spherical":
         return ct * vL + st * cp * vR + st * sp * vT
+    if law == "spherical_normalised":
+        return (ct * vL + st * cp * vR + st * sp * vT) / (ct + st * cp + st * sp)
     raise ValueError(law)
 
 
-@pytest.mark.parametrize("law", ["hankinson", "linear", "spherical"])
+@pytest.mark.parametrize("law", ["hankinson", "linear", "spherical", "spherical_normalised"])
 def test_laws_match_formulas(law):
     rng = np.random.default_rng(12)
     F = lrt_frame(30.0)
@@ -105,7 +108,57 @@ def test_laws_match_formulas(law):
     np.testing.assert_allclose(evaluate(law, u, F, VALS), _spec(law, u, F, *VALS), rtol=1e-10)
 
 
-@pytest.mark.parametrize("law", ["TOR", "hankinson", "linear"])
+@pytest.mark.parametrize("law", sorted(LAWS))
+def test_law_formulas_with_equal_triple(law):
+    """Each law's own formula (``LAWS[law]``, no shortcut) on (v, v, v) against an independent value:
+    v for the interpolating laws, v (cL + cR + cT) = v (|u.L| + |u.R| + |u.T|) for W's spherical law
+    (1.41 v at 45 deg in a material plane, 1.73 v on the diagonal). Tolerance 1e-13: rounding of
+    the trigonometric forms."""
+    rng = np.random.default_rng(21)
+    F = lrt_frame(30.0)
+    L, R, T = F
+    u = np.vstack([random_dirs(rng, 300), np.sqrt(0.5) * (L + R), (L + R + T) / np.sqrt(3.0)])
+    v = 3.3e8
+    c, theta, phi = direction_angles(u, F)
+    got = LAWS[law](c, theta, phi, v, v, v)
+    if law == "spherical":
+        expected = v * np.abs(u @ F.T).sum(axis=1)
+        assert got[-2] == pytest.approx(np.sqrt(2.0) * v, rel=1e-13)
+        assert got[-1] == pytest.approx(np.sqrt(3.0) * v, rel=1e-13)
+    else:
+        assert law in INTERPOLATING
+        expected = np.full(len(u), v)
+    if law == "TOR":
+        np.testing.assert_array_equal(got, expected)
+    else:
+        np.testing.assert_allclose(got, expected, rtol=1e-13)
+    if law == "spherical_normalised":   # unequal: a weighted mean, inside [min, max]
+        w = np.abs(u @ F.T)
+        got_u = LAWS[law](c, theta, phi, *VALS)
+        np.testing.assert_allclose(got_u, (w @ np.asarray(VALS)) / w.sum(axis=1), rtol=1e-13)
+
+
+@pytest.mark.parametrize("law", sorted(LAWS))
+def test_scalar_and_equal_triple_are_the_same_for_every_law(law):
+    """The issue's consistency: ``young = v`` and ``[v, v, v]`` give bitwise the same values, and the
+    value of W's spherical law for either is its formula's (not a shortcut to v)."""
+    u = random_dirs(np.random.default_rng(4), 200)
+    F = lrt_frame(17.0)
+    scalar, triple = evaluate(law, u, F, 0.7), evaluate(law, u, F, [0.7, 0.7, 0.7])
+    np.testing.assert_array_equal(scalar, triple)
+    if law == "spherical":
+        np.testing.assert_allclose(scalar, 0.7 * np.abs(u @ F.T).sum(axis=1), rtol=1e-13)
+        assert scalar.max() > 1.5 * 0.7          # random directions reach near the diagonal's sqrt(3)
+    else:
+        np.testing.assert_array_equal(scalar, np.full(200, 0.7))
+
+
+def test_unknown_law_is_refused():
+    with pytest.raises(ValueError, match="expected one of"):
+        evaluate("elliptic", np.eye(3), np.eye(3), VALS)
+
+
+@pytest.mark.parametrize("law", ["TOR", "hankinson", "linear", "spherical_normalised"])
 def test_bounded_and_isotropic(law):
     """These laws interpolate: values stay within [min, max] and an isotropic input stays isotropic."""
     rng = np.random.default_rng(13)
@@ -114,12 +167,3 @@ def test_bounded_and_isotropic(law):
     v = evaluate(law, u, F, VALS)
     assert np.all(v >= min(VALS) * (1 - 1e-14)) and np.all(v <= max(VALS) * (1 + 1e-14))
     np.testing.assert_allclose(evaluate(law, u, F, 5.0e8), 5.0e8, rtol=1e-13)
-
-
-@pytest.mark.parametrize("law", ["TOR", "hankinson", "linear", "spherical"])
-def test_scalar_value_is_isotropic_for_every_law(law):
-    """A scalar (isotropic) property is the same along every bond direction, whatever the law."""
-    from pardem.physics.anisotropy import evaluate, lrt_frame
-    u = np.random.default_rng(4).normal(size=(200, 3))
-    u /= np.linalg.norm(u, axis=1)[:, None]
-    np.testing.assert_array_equal(evaluate(law, u, lrt_frame(17.0), 0.7), np.full(200, 0.7))

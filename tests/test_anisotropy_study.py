@@ -23,6 +23,7 @@ from pardem.protocols import anisotropy_study as study
 from pardem.config import load_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.drivers import anisotropy
+from pardem.io.records import read_records
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -292,7 +293,9 @@ def test_plan_groups_realisations_and_balances_ranks():
 
 def test_a_killed_study_continues_where_it_stopped(quick, tmp_path):
     """A study killed after its third case (the fourth record cut mid-line) and continued with
-    --restart runs only the missing cases and gives the uninterrupted study's numbers exactly."""
+    --restart runs only the missing cases and gives the uninterrupted study's numbers exactly; the
+    continued study is written into a new folder (the killed one is left as it was) that holds every
+    record."""
     ref, ref_out = quick
     d = tmp_path / "s"
     shutil.copytree(ref_out, d)
@@ -301,8 +304,11 @@ def test_a_killed_study_continues_where_it_stopped(quick, tmp_path):
     assert len(lines) == ref["meta"]["n_cases"]           # one record per case, written as it ends
     log.write_text("".join(lines[:3]) + lines[3][:25])
     (d / "anisotropy.json").unlink()
-    data = run_driver(d, QUICK + ["--restart", str(d)])
+    before = log.read_text()
+    data = run_driver(tmp_path / "continued", QUICK + ["--restart", str(d)])
     assert data["meta"]["cases_reused"] == 3 and data["meta"]["restarted_from"] == str(d)
+    assert log.read_text() == before
+    assert len(read_records(str(tmp_path / "continued"))) == ref["meta"]["n_cases"]
     assert data["ordered"] == ref["ordered"]
     drop = {"seconds", "rank"}
     assert ([{k: v for k, v in c.items() if k not in drop} for c in data["meta"]["cases"]]
@@ -317,7 +323,7 @@ def test_restart_refuses_another_study_and_new_study_refuses_a_used_dir(quick, c
     shutil.copytree(ref_out, d)
     for argv, words in ((QUICK[:3] + ["--ratios", "1,5", "--xi-step", "45", "--set", SMALL, "--quiet",
                                        "--restart", str(d)], "another plan"),
-                        (QUICK, "holds another study")):
+                        (QUICK, "holds the results of another run")):
         with pytest.raises(SystemExit) as exc:
             anisotropy.main(argv + ["--out", str(d)])
         assert exc.value.code == 2

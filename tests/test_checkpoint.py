@@ -217,15 +217,31 @@ def test_restart_refuses_steps_before_the_checkpoint(reference, tmp_path):
     _one_line_exit_2(p, "--steps 1000", "before the checkpoint's step 1500")
 
 
-def test_prune_keeps_other_runs_checkpoints(reference, tmp_path):
+def test_restart_writes_its_own_folder_and_prunes_only_its_checkpoints(reference, tmp_path):
+    """A restart without --out writes into a new sibling folder (never into the original run's),
+    keeps only its own newest ``checkpoint.keep`` checkpoints there, and leaves every file of the
+    original run as it was."""
     run = tmp_path / "copy"
     shutil.copytree(reference[1], run)
+    before = {name: (run / "checkpoints" / name).read_bytes() for name in os.listdir(run / "checkpoints")}
+    summary_before = (run / "summary.json").read_bytes()
     p = driver(1, ["--restart", str(run / MID), "--set", "checkpoint.every_steps=100",
                    "--set", "checkpoint.keep=2"])
     assert ran_to_end(p), p.stderr
-    s = json.loads((run / "summary.json").read_text())
+    new = [d for d in os.listdir(tmp_path) if d.startswith("copy-restart-")]
+    assert len(new) == 1, os.listdir(tmp_path)
+    s = json.loads((tmp_path / new[0] / "summary.json").read_text())
     assert [os.path.basename(x) for x in s["checkpoints"]] == ["checkpoint-0000002000.h5",
                                                                "checkpoint-0000002090.h5"]
-    names = sorted(os.listdir(run / "checkpoints"))
-    assert "checkpoint-0000001500.h5" in names          # written by the first run: not ours to prune
-    assert "checkpoint-0000001900.h5" not in names and "checkpoint-0000001600.h5" not in names
+    assert sorted(os.listdir(tmp_path / new[0] / "checkpoints")) == ["checkpoint-0000002000.h5",
+                                                                    "checkpoint-0000002090.h5"]
+    after = {name: (run / "checkpoints" / name).read_bytes() for name in os.listdir(run / "checkpoints")}
+    assert after == before and (run / "summary.json").read_bytes() == summary_before
+
+
+def test_restart_into_the_original_folder_is_refused(reference, tmp_path):
+    run = tmp_path / "copy"
+    shutil.copytree(reference[1], run)
+    for extra in ([], ["--overwrite"]):
+        p = driver(1, ["--restart", str(run / MID), "--out", str(run), *extra])
+        assert p.returncode == 2 and p.stderr.count("\n") == 1 and "Traceback" not in p.stderr, p.stderr

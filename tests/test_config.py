@@ -21,9 +21,9 @@ BAD = [
     (["--set", "bonds.poisson=-1"], "bonds.poisson", "(-1.0, 0.5)"),
     (["--set", "bonds.damping=1.5"], "bonds.damping", "[0.0, 1.0]"),
     (["--set", "bonds.damping=-0.1"], "bonds.damping", "[0.0, 1.0]"),
-    (["--set", "bonds.law=elliptic"], "bonds.law", "'TOR', 'hankinson', 'linear', 'spherical'"),
-    (["--set", "loading.strain=0"], "loading.strain", "(0.0, 0.5)"),
-    (["--set", "loading.strain=0.6"], "loading.strain", "(0.0, 0.5)"),
+    (["--set", "bonds.law=elliptic"], "bonds.law", "'TOR', 'hankinson', 'linear', 'spherical', 'spherical_normalised'"),
+    (["--set", "loading.strain=0"], "loading.strain", "[1e-12, 0.5)"),
+    (["--set", "loading.strain=0.6"], "loading.strain", "[1e-12, 0.5)"),
     (["--set", "loading.axis=w"], "loading.axis", "'x', 'y', 'z'"),
     (["--set", "domain.radius=\"big\""], "domain.radius", "a number"),
     (["--set", "domain.box=0.01"], "domain.box", "list of 3"),
@@ -33,7 +33,7 @@ BAD = [
     (["--set", "run.dt=-1.0"], "run.dt", "\"auto\""),
     (["--set", "output.series_every=1.5"], "output.series_every", "an integer"),
     (["--set", "noequals"], "noequals", "section.key=value"),
-    (["--steps", "0"], "--steps", ">= 1"),
+    (["--steps", "0"], "--steps", "from 1 to"),
     (["--set", "domain.box=[0.01, 0.01, 0.0003]"], "domain.box", "smaller than one element diameter"),
     (["--set", "domain.box=[0.01, 0.01, 0.0015]", "--set", "loading.axis=z"], "domain.box",
      "at least 2 element layers"),
@@ -110,13 +110,16 @@ def test_help_lists_every_key(capsys):
             assert key in text, key
 
 
-def test_a_run_too_short_to_measure_says_so_and_exits_4(capsys, tmp_path):
+def test_a_run_too_short_to_measure_says_so_and_exits_5(capsys, tmp_path):
     """50 steps end inside the plate's ramp: no sample to fit the modulus. The driver writes its
-    files, prints one line saying why there is no modulus, and exits 4 (not 0 with E = nan)."""
+    files, prints one line saying why there is no modulus, and exits 5 (not 0 with E = nan)."""
+    from pardem.drivers.cli import EXIT_NOT_MEASURED
     out = tmp_path / "short"
-    with pytest.raises(SystemExit) as exc:
-        compress.main(["--steps", "50", "--out", str(out), "--quiet"])
-    assert exc.value.code == 4
+    try:
+        code = compress.main(["--steps", "50", "--out", str(out), "--quiet"])
+    except SystemExit as exc:
+        code = exc.code
+    assert code == EXIT_NOT_MEASURED == 5
     err = capsys.readouterr().err.strip().splitlines()
     short = [line for line in err if "too short to measure" in line]   # (after the dynamic-loading warning)
     assert len(short) == 1 and "ramp" in short[0] and "Traceback" not in "".join(err), err
@@ -134,4 +137,4 @@ def test_help_lists_the_allowed_values_of_every_choice_key():
             options = getattr(f.check, "options", None)
             if options:
                 assert "(one of: " + ", ".join(map(str, options)) + ")" in text
-    assert "anisotropy law (one of: TOR, hankinson, linear, spherical)" in text
+    assert "(one of: TOR, hankinson, linear, spherical, spherical_normalised)" in text

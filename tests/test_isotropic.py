@@ -219,7 +219,7 @@ def test_fire_steers_downhill_and_stops_uphill():
     e.v[:] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
     e.f[:] = [[1.0, 1.0, 0.0], [0.0, 1.0, 0.0]]
     e.w[:] = 3.0
-    sim = SimpleNamespace(elements=e, comm=FakeComm())
+    sim = SimpleNamespace(elements=e, comm=FakeComm(), contacts=None)
     fire = Fire(alpha_start=0.1)
     v0 = e.v.copy()
     fire(sim)
@@ -247,7 +247,8 @@ def test_fire_adaptive_step():
     e = Elements.from_spheres(np.zeros((2, 3)), 1.0, 1.0)
     e.v[:] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
     e.f[:] = e.v
-    contacts = SimpleNamespace(params=SimpleNamespace(friction=0.0), stiffness=lambda el: (1.0 / 9.0, 0.0))
+    contacts = SimpleNamespace(params=SimpleNamespace(friction=0.0), stiffness=lambda el: (1.0 / 9.0, 0.0),
+                               reproducible=False)
     sim = SimpleNamespace(elements=e, comm=FakeComm(), contacts=contacts, dt=1.0)
     sim.set_dt = lambda dt: setattr(sim, "dt", dt)
     fire = Fire(n_min=5, dt_max=5.0, dt_min=0.1, safety=0.5)

@@ -5,7 +5,10 @@
         [--realisations 10] [--xi-step 10] [--offaxis-ratio Q] [--transits 4] [--quick] [--out DIR]
     mpiexec -n 2 python -m pardem.drivers.anisotropy ...      (cases are spread over the ranks)
 
-Writes ``DIR/anisotropy.json``, ``DIR/anisotropy.png`` (with matplotlib) and prints the table; see
+Writes ``DIR/anisotropy.json``, ``DIR/anisotropy.png`` (with matplotlib), per case
+``DIR/series/<case>.csv`` and ``.h5`` (compress's columns, with units) and, when the deck's
+``output.vtk_every`` > 0, ``DIR/paraview/<case>/pardem.pvd``, the record of each finished case in
+``DIR/records/rank-<r>.jsonl`` (``--restart DIR`` continues from them), and prints the table; see
 ``pardem.protocols.anisotropy_study`` for what is run and how. JSON layout: ``data[kind][law]`` = one row per
 bond ratio with ``bond_LR``, ``bond_LT`` (bond ratios), ``LR_mean``, ``LR_std``, ``LT_mean``, ``LT_std``
 (the domain's E_L^D/E_R^D and E_L^D/E_T^D over the realisations), ``E_{L,R,T}_{mean,std}`` [Pa],
@@ -20,10 +23,11 @@ given; ``--set`` applies on top). Its ``bonds.young`` gives E_R and E_T; E_L = r
 Runtime of the full default (4 laws x 6 ratios x 3 axes, off-axis 0..90 by 10 deg: 108 compressions
 per domain, 8 transits each), measured on the shared 2-core development machine: the ordered lattice
 (1,331 elements) about 2.5 min on one core (2.2 min on 2 ranks); one compact realisation (about 1,480
-elements, its 3 packings included) took about 17 min on one core before an isotropic bond radius
-stopped being scaled by the spherical law (it made those bonds up to 15 times stiffer in bending and
-the step shorter; 60 % of that time was the spherical law), so about 8 min now. The full default with
-10 realisations: estimated 50 min on 2 ranks. ``--quick`` (boxes of 18 radii, ratios 1 and 5, 2
+elements, its 3 packings included) about 17 min on one core, 60 % of it the spherical law's cases: W's
+spherical law scales the study's isotropic bond radius ratio too (a scalar is the equal triple under
+every law, ``pardem.physics.anisotropy``), by up to sqrt(3), which makes those bonds up to 15 times
+stiffer in bending and the step shorter (``--laws TOR,hankinson,linear,spherical_normalised``: about
+8 min). The full default with 10 realisations: estimated 1.5 h on 2 ranks. ``--quick`` (boxes of 18 radii, ratios 1 and 5, 2
 realisations, xi = 0, 45, 90) takes about 10 s for the ordered lattice and a few minutes for the
 compact domains; restrict it further (``--laws hankinson --ratios 1 --xi-step 0``: 10 s) for a smoke
 test.
@@ -31,7 +35,7 @@ test.
 Exit codes: 0 done (failed measurements are flagged in the output, not errors), 1 unexpected error
 (all ranks stop), 2 bad input (one line naming the option or deck field and the allowed values).
 """
-import datetime
+import contextlib
 import json
 import os
 import sys
@@ -42,11 +46,15 @@ import numpy as np
 
 import pardem
 from pardem.protocols import anisotropy_study as study
-from pardem.drivers.cli import EXIT_OK, driver_parser, fail_usage, run_driver
+from pardem.drivers.cli import EXIT_OK, driver_parser, fail_usage, output_dir, run_driver
 from pardem.protocols.compression import build_case
 from pardem.config import DeckError, load_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
-from pardem.io.records import RecordLog, read_records, read_study_header, write_study_header
+from pardem.io.paraview import ParaViewWriter
+from pardem.io.records import (RecordLog, header_difference, read_records, read_study_header,
+                               start_study_folder)
+from pardem.io.series import SeriesCSV
+from pardem.io.series_h5 import SeriesH5
 from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator
 
@@ -58,7 +66,8 @@ def parser(comm=None):
                                  "are in drivers/anisotropy_study.toml)")
     p.add_argument("--kinds", metavar="LIST", help="domain kinds, comma-separated: ordered, compact "
                                                     "(default: both)")
-    p.add_argument("--laws", metavar="LIST", help=f"anisotropy laws (default: {','.join(study.LAWS)})")
+    p.add_argument("--laws", metavar="LIST", help=f"anisotropy laws, comma-separated: "
+                                                  f"{', '.join(study.ALL_LAWS)} (default: {','.join(study.LAWS)})")
     p.add_argument("--ratios", metavar="LIST", help="bond ratios E_L/E_R, each > 0 "
                                                      "(default: 1,5,10,15,20,25)")
     p.add_argument("--realisations", metavar="N", help="compact realisations (default 10; the ordered "
@@ -69,13 +78,16 @@ def parser(comm=None):
                    help="E_L/E_R of the off-axis sweep (default: the largest of --ratios)")
     p.add_argument("--transits", metavar="N", help=f"loading time in axial wave transits, in [1, 1000] "
                                                    f"(default {study.DEFAULT_TRANSITS:g})")
+    p.add_argument("--steps", metavar="N",
+                   help="run each case for at most N steps (smoke tests: a case too short to measure is "
+                        "flagged, not reported; default: the case's loading from --transits)")
     p.add_argument("--quick", action="store_true",
                    help="a small study for tests: boxes of 18 radii, ratios 1,5, 2 realisations, xi step 45")
     p.add_argument("--no-plot", action="store_true", dest="no_plot", help="do not write anisotropy.png")
     p.add_argument("--restart", metavar="DIR",
                    help="continue the study whose output is DIR (killed or stopped): the cases recorded in "
-                        "DIR/records are not run again; the same deck and options are required (--out "
-                        "defaults to DIR)")
+                        "DIR/records are not run again; the same deck and options are required; the results "
+                        "go to a new folder (--out, default DIR-restart-<time>) that holds every record")
     return p
 
 
@@ -111,7 +123,7 @@ def _names(name, text, allowed):
 def make_plan(args, deck):
     """The study plan from the options and the checked deck; DeckError on a bad option."""
     kinds = study.KINDS if args.kinds is None else _names("--kinds", args.kinds, study.KINDS)
-    laws = study.LAWS if args.laws is None else _names("--laws", args.laws, study.LAWS)
+    laws = study.LAWS if args.laws is None else _names("--laws", args.laws, study.ALL_LAWS)
     quick = study.QUICK_PLAN if args.quick else {}
     if args.ratios is not None:
         ratios = _numbers("--ratios", args.ratios, 1e-3, 1e4)
@@ -126,10 +138,11 @@ def make_plan(args, deck):
              else max(ratios))
     transits = (_number("--transits", args.transits, 1, 1000) if args.transits is not None
                 else study.DEFAULT_TRANSITS)
+    steps = _number("--steps", args.steps, 1, 1e10, integer=True) if args.steps is not None else None
     E_R, E_T = study.bond_moduli(deck)
     return study.StudyPlan(kinds=kinds, laws=laws, ratios=ratios, E_R=E_R, E_T=E_T,
                            realisations=realisations, xi_step=xi_step, offaxis_ratio=q_off,
-                           transits=transits, base_seed=int(deck["domain"].get("seed", 0)))
+                           transits=transits, base_seed=int(deck["domain"].get("seed", 0)), steps=steps)
 
 
 def main(argv=None):
@@ -186,20 +199,12 @@ def run(comm, args):
             plot = False
             sys.stderr.write("pardem: note: matplotlib is not installed, so no anisotropy.png "
                              "(pip install 'pardem[plot]')\n")
-    out = args.out or args.restart or os.path.join("runs", "anisotropy-" + comm.bcast(
-        datetime.datetime.now().strftime("%Y%m%d-%H%M%S")))
-    same_dir = bool(args.restart) and os.path.realpath(out) == os.path.realpath(args.restart)
-    if not same_dir and comm.bcast(read_study_header(out) is not None if comm.is_root else None):
-        fail_usage(comm, f"--out {out} holds another study's records: choose another --out, or continue "
-                         f"that study with --restart {out}")
+    # checked, created and locked; a folder holding results is refused (unless --overwrite), and a
+    # restart writes into a new folder (default DIR-restart-<time>) that gets every record
+    out = output_dir(comm, args, "anisotropy")
     n_cases = sum(len(g) for g in study.plan_cases(plan))
     if comm.is_root:
-        os.makedirs(out, exist_ok=True)
-        write_study_header(out, header)
-        if finished and not same_dir:
-            log = RecordLog(out, 0)   # the new directory holds every record, for a later restart
-            for rec in finished.values():
-                log.append(rec)
+        start_study_folder(out, header, finished)
     comm.barrier()
     log = RecordLog(out, comm.rank)
     if comm.is_root:
@@ -213,7 +218,7 @@ def run(comm, args):
         print(f"restart: {len(finished)} of {n_cases} cases recorded in {args.restart} are not run again",
               flush=True)
     records = study.run_study(comm, case_comm, deck, plan, progress, packings, finished=finished,
-                              on_record=log.append)
+                              on_record=log.append, outputs=_case_outputs(out, case_comm, deck["output"]["vtk_every"]))
     if comm.is_root:
         data = study.summarise(records, plan)
         failed = [r for r in records if r["status"] != "ok"]
@@ -249,6 +254,25 @@ def run(comm, args):
     return EXIT_OK
 
 
+def _case_outputs(out, case_comm, vtk_every):
+    """``outputs`` of ``anisotropy_study.run_case``: per case ``DIR/series/<case>.csv`` and ``.h5``
+    (compress's columns and units) written by the rank running it, and ``DIR/paraview/<case>/``
+    when ``output.vtk_every`` > 0."""
+    @contextlib.contextmanager
+    def outputs(case, name, sim):
+        folder = os.path.join(out, "series")
+        os.makedirs(folder, exist_ok=True)
+        with contextlib.ExitStack() as files:
+            csv = SeriesCSV(os.path.join(folder, f"{name}.csv"))
+            files.callback(csv.close)
+            h5 = SeriesH5(os.path.join(folder, f"{name}.h5"))
+            files.callback(h5.close)
+            ops = [ParaViewWriter(os.path.join(out, "paraview", name), case_comm, vtk_every, dt=sim.dt)] \
+                if vtk_every else []
+            yield [csv.append, h5.append], ops
+    return outputs
+
+
 def _plain_json(obj):
     """``obj`` as JSON gives it back (tuples as lists, NaN kept), for comparing with a stored header."""
     return json.loads(json.dumps(obj, sort_keys=True))
@@ -260,13 +284,11 @@ def _finished_cases(comm, directory, header):
     old = read_study_header(directory)
     if old is None:
         fail_usage(comm, f"--restart {directory}: no study.json there: not the output of an anisotropy study")
-    for part in ("plan", "deck"):
-        if old.get(part) != header[part]:
-            keys = sorted(set(old.get(part) or {}) | set(header[part]))
-            first = next((k for k in keys if (old.get(part) or {}).get(k) != header[part].get(k)), part)
-            fail_usage(comm, f"--restart {directory}: the study there has another {part} ({first}: "
-                             f"{(old.get(part) or {}).get(first)!r} there, {header[part].get(first)!r} now): "
-                             f"repeat its options and deck to continue it")
+    diff = header_difference(old, header, ("plan", "deck"))
+    if diff:
+        part, first, was, now = diff
+        fail_usage(comm, f"--restart {directory}: the study there has another {part} ({first}: "
+                         f"{was!r} there, {now!r} now): repeat its options and deck to continue it")
     return {study.case_id(r): r for r in read_records(directory)}
 
 

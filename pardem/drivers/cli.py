@@ -1,19 +1,43 @@
-"""Command-line plumbing shared by the drivers: options, deck loading, exit codes.
+"""Command-line plumbing shared by the drivers: options, deck loading, output folder, signals,
+exit codes.
 
-Exit codes: 0 success; 2 bad input (deck, options, time step) with one line on stderr;
-3 the run became unstable; 4 the run ended but was too short to measure its result (its files are
-written); 1 unexpected error (all ranks are aborted).
+Exit codes: 0 success; 2 bad input (deck, options, time step, output path) with one line on
+stderr; 3 the run became unstable; 4 a result could not be written (disk full, permission denied,
+read-only or over quota), one line; 5 the run ended but was too short to measure its result (its
+files are written); 128 + N stopped by signal N (143 SIGTERM, 130 SIGINT, 138 SIGUSR1); 1 unexpected
+error or a silent rank (the watchdog), all ranks are aborted.
+
+Signals (``stop_signals``): SIGTERM, SIGINT and SIGUSR1 only record a stop request
+(``pardem.engine.stop``); the time loop reduces it over ranks every ``check_every`` steps and
+raises ``Interrupted`` on every rank at the same step, so the driver can write a final checkpoint
+and its summary. A signal before this run's first time step (building the case: nothing to save)
+ends the process at once, as does the same signal again while stopping (after ``REPEAT_SECONDS``,
+so that one signal delivered twice counts once). mpiexec (hydra) forwards SIGTERM, SIGINT and
+SIGUSR1 to every rank; Slurm sends SIGTERM to every task at ``scancel`` and at the time limit, then
+SIGKILL after ``KillWait`` (30 s by default), and ``#SBATCH --signal=TERM@300`` sends it 300 s early.
 """
 import argparse
 import datetime
+import errno
 import os
+import signal
 import sys
+import time
 
 from pardem.config import DeckError, describe, load_deck
-from pardem.parallel.communicator import report_and_abort
-from pardem.engine.errors import InstabilityError
+from pardem.engine import stop
+from pardem.engine.errors import InstabilityError, Interrupted, OutputError
+from pardem.io import run_folder
+from pardem.parallel import watchdog
+from pardem.parallel.communicator import exit_now, report_and_abort
 
-EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_UNSTABLE, EXIT_NOT_MEASURED = 0, 1, 2, 3, 4
+EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_UNSTABLE, EXIT_OUTPUT, EXIT_NOT_MEASURED = 0, 1, 2, 3, 4, 5
+EXIT_SIGNAL = 128              # + the signal number
+MAX_STEPS = 10 ** 10           # --steps above this is refused (a typo, not a run)
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGUSR1)
+REPEAT_SECONDS = 1.0           # the same signal again after this long while stopping ends at once
+OUTPUT_ERRNOS = {errno.ENOSPC: "No space left on device", errno.EACCES: "Permission denied",
+                 errno.EROFS: "Read-only file system", errno.EDQUOT: "Disk quota exceeded"}
 
 
 class DriverParser(argparse.ArgumentParser):
@@ -35,14 +59,17 @@ def driver_parser(prog, description, schema, run_options=True, comm=None,
         prog=prog, description=description,
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog=f"{deck_title}:\n" + describe(schema) + (f"\n\n{epilog}" if epilog else "") +
-               "\n\nexit codes: 0 ok, 1 unexpected error, 2 bad input, 3 unstable run, "
-               "4 run too short to measure its result")
+               "\n\nexit codes: 0 ok, 1 unexpected error or a silent rank, 2 bad input, 3 unstable run, "
+               "4 results could not be written (disk full, no permission), 5 run too short to measure its "
+               "result, 128 + N stopped by signal N (143 SIGTERM, 130 SIGINT)")
     p.comm = comm
     p.add_argument("--config", metavar="FILE.toml", help="input deck (TOML); defaults fill the rest")
     p.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
                    dest="overrides", help="override one deck key (repeatable, applied after --config)")
     p.add_argument("--out", metavar="DIR",
-                   help="output directory" + (f" (default {out_default})" if out_default else ""))
+                   help="output directory, of this run alone" + (f" (default {out_default})" if out_default else ""))
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the results of an earlier run found in --out (otherwise refused)")
     if run_options:
         p.add_argument("--steps", type=int, metavar="N",
                        help=steps_help or "total steps of the run from its start, also on restart "
@@ -56,19 +83,140 @@ def driver_parser(prog, description, schema, run_options=True, comm=None,
 
 
 def run_driver(comm, run, args):
-    """``run(comm, args)`` with the drivers' failure policy: an unstable run ends with one line and
-    exit code 3 on every rank; any other exception is printed and aborts every rank (none hangs)."""
+    """``run(comm, args)`` with the drivers' failure policy, stop signals (``stop_signals``) and
+    the watchdog (``pardem.parallel.watchdog``; the deck's ``run.watchdog_seconds`` via
+    ``read_deck``). An unstable run ends with one line and exit code 3 on every rank; a stop signal
+    with one line and 128 + N; a result that cannot be written with one line and 4; any other
+    exception is printed and aborts every rank (none hangs)."""
+    stop.clear()
+    previous = stop_signals(comm)
+    watchdog.start(comm, watchdog.DEFAULT_SECONDS)
     try:
-        return run(comm, args)
+        code = run(comm, args)
+        if stop.requested() and comm.is_root:
+            sys.stderr.write(f"pardem: {_signal_name(stop.requested())} arrived after the last time step; "
+                             f"the run is complete\n")
+        return code
     except SystemExit:
         raise
+    except Interrupted as err:
+        code = EXIT_SIGNAL + err.signum
+        if comm.is_root:
+            sys.stderr.write(interrupted_line(err) + "\n")
+        if comm.size > 1:
+            # every rank is here (Interrupted is raised on all at one step). mpiexec.mpich reported
+            # a job whose ranks all exited 128 + N normally as exit 0 in about half of the tries
+            # after forwarding the signal; MPI_Abort(128 + N) always gave 128 + N
+            watchdog.stop()
+            comm.barrier()
+            if comm.is_root:
+                comm.abort(code)
+            time.sleep(30.0)     # rank 0's abort ends this rank
+        raise SystemExit(code)
     except InstabilityError as err:
         if comm.is_root:
             sys.stderr.write(f"pardem: error: the run became unstable: {err}; reduce the time step or check "
                              f"the stiffness and damping; the last checkpoint (if any) is intact\n")
         raise SystemExit(EXIT_UNSTABLE)
+    except (OutputError, OSError) as err:
+        reason = output_failure(err)
+        if reason is None:
+            report_and_abort(comm, err)
+        everywhere = getattr(err, "all_ranks", False) or comm.size == 1
+        if comm.is_root or not everywhere:
+            who = "" if everywhere else f"rank {comm.rank}: "
+            sys.stderr.write(f"pardem: error: {who}cannot write the results: {reason}; the checkpoints "
+                             f"written before are kept\n")
+        if not everywhere:
+            comm.abort(EXIT_OUTPUT)   # the other ranks may be waiting for this one
+        raise SystemExit(EXIT_OUTPUT)
     except Exception as exc:  # noqa: BLE001 - any other failure must end every rank
         report_and_abort(comm, exc)
+    finally:
+        watchdog.stop()
+        run_folder.release_all()
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def output_failure(err):
+    """The one-line reason of a failed write (disk full, no permission, read-only, over quota), or
+    None if ``err`` is another kind of error. h5py reports the errno only in its message."""
+    if isinstance(err, OutputError):
+        return str(err)
+    if err.errno in OUTPUT_ERRNOS:
+        return f"{err.strerror or OUTPUT_ERRNOS[err.errno]}" + (f" ({err.filename})" if err.filename else "")
+    text = str(err)
+    for code, message in OUTPUT_ERRNOS.items():
+        if message in text or f"errno = {code}," in text:
+            return f"{message} ({text.splitlines()[0][:200]})"
+    return None
+
+
+def interrupted_line(err):
+    """The one line that ends an interrupted run. The driver's stop protocol may set
+    ``err.checkpoint`` (the newest checkpoint) and ``err.final`` (it was written at the stop)."""
+    head = f"pardem: stopped by {_signal_name(err.signum)} at step {err.step}"
+    ck = getattr(err, "checkpoint", None)
+    if ck and getattr(err, "final", False):
+        return f"{head}; final checkpoint {ck}; restart with --restart {ck}"
+    if ck:
+        return f"{head}; no final checkpoint (checkpoint.at_stop = false); restart with --restart {ck}"
+    return f"{head}; no checkpoint written, nothing to restart from"
+
+
+def _signal_name(signum):
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"
+
+
+def stop_signals(comm):
+    """Install the handlers of ``STOP_SIGNALS`` (main thread only); returns the previous ones.
+
+    The handler only records the request (no exception raised at a random place: a
+    KeyboardInterrupt inside a weakref callback or an MPI wait was lost, "Exception ignored").
+    Before this run's first time step it ends the process at once (exit 128 + N, one line on rank
+    0): building a case saves nothing, and waiting for the time loop could take minutes. The
+    same signal again while stopping (``REPEAT_SECONDS`` after the first) also ends it at once.
+    """
+    first_step = watchdog.beats()
+
+    def on_signal(signum, frame):
+        first = stop.requested()
+        if not first:
+            stop.request(signum)
+            if watchdog.beats() == first_step:
+                _exit_now(comm, signum, "before the first time step; nothing to save")
+        elif signum == first and stop.seconds_since() > REPEAT_SECONDS:
+            _exit_now(comm, signum, "again while stopping; ended at once, the last checkpoint written is intact")
+
+    previous = {}
+    for signum in STOP_SIGNALS:
+        try:
+            previous[signum] = signal.signal(signum, on_signal)
+        except ValueError:       # not the main thread: leave the signals alone
+            break
+    return previous
+
+
+def _exit_now(comm, signum, why):
+    if comm.is_root:
+        os.write(2, f"pardem: stopped by {_signal_name(signum)} {why}\n".encode())
+    exit_now(EXIT_SIGNAL + signum, comm.rank)
+
+
+def output_dir(comm, args, driver):
+    """Collective: the output folder of this run, checked, created and locked
+    (``pardem.io.run_folder.claim``): ``--out``, or ``default_out``. A bad path or a folder in use
+    or holding another run's results (without ``--overwrite``) ends with one line and exit 2."""
+    restart = getattr(args, "restart", None)
+    out = args.out if args.out is not None else default_out(comm, driver, restart)
+    try:
+        return run_folder.claim(comm, out, overwrite=getattr(args, "overwrite", False), restart=restart)
+    except DeckError as err:
+        fail_usage(comm, str(err))
 
 
 def fail_usage(comm, message):
@@ -79,21 +227,29 @@ def fail_usage(comm, message):
 
 
 def read_deck(comm, schema, args, base=None):
-    """The checked deck of ``--config`` (or ``base``) and ``--set``; exits 2 on bad input."""
+    """The checked deck of ``--config`` (or ``base``) and ``--set``; exits 2 on bad input. Its
+    ``run.watchdog_seconds``, if the schema has it, sets the watchdog's limit."""
     try:
         steps = getattr(args, "steps", None)
-        if steps is not None and steps < 1:
-            raise DeckError(f"--steps {steps}: expected an integer >= 1")
-        return load_deck(schema, args.config, args.overrides, base=base)
+        if steps is not None and not 1 <= steps <= MAX_STEPS:
+            raise DeckError(f"--steps {steps}: expected an integer from 1 to {MAX_STEPS:.0e}")
+        deck = load_deck(schema, args.config, args.overrides, base=base)
     except DeckError as err:
         fail_usage(comm, str(err))
+    seconds = deck["run"].get("watchdog_seconds") if isinstance(deck.get("run"), dict) else None
+    if seconds is not None:
+        watchdog.configure(seconds)
+    return deck
 
 
 def default_out(comm, driver, restart):
-    """``runs/<driver>-<timestamp>``, or the run directory of the checkpoint being continued."""
-    if restart:
-        parent = os.path.dirname(os.path.abspath(restart))
-        if os.path.basename(parent) == "checkpoints":
-            return os.path.dirname(parent)
+    """``runs/<driver>-<timestamp>``; on restart a new sibling of the run being continued,
+    ``<run>-restart-<timestamp>`` (``<run>`` the folder holding ``checkpoints/``, or the
+    checkpoint's path without ``.h5``): a restart never writes into the original run's folder."""
     stamp = comm.bcast(datetime.datetime.now().strftime("%Y%m%d-%H%M%S"))
+    if restart:
+        path = os.path.abspath(restart)
+        parent = os.path.dirname(path)
+        run = os.path.dirname(parent) if os.path.basename(parent) == "checkpoints" else os.path.splitext(path)[0]
+        return f"{run}-restart-{stamp}"
     return os.path.join("runs", f"{driver}-{stamp}")

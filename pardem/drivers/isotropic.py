@@ -30,36 +30,29 @@ Exit codes: 0 done (a pressure that did not reach equilibrium within ``preparati
 flagged ``converged: false`` in ``details`` and warned about), 1 unexpected error (all ranks stop),
 2 bad input (one line naming the option or deck field), 3 the run became unstable.
 """
-import contextlib
 import os
 import sys
-import time
 
 import pardem
 from pardem.config import DeckError
-from pardem.drivers.cli import EXIT_OK, default_out, driver_parser, fail_usage, read_deck, run_driver
-from pardem.engine import granular
-from pardem.engine.errors import DecompositionError
-from pardem.engine.simulation import FaultInjection
-from pardem.io import checkpoint
-from pardem.io.progress import Progress
-from pardem.io.summary import write_json
+from pardem.drivers import cli
+from pardem.drivers.runner import GranularDriver, run_protocol
 from pardem.parallel.communicator import Communicator
 from pardem.protocols import granular_output as gout
 from pardem.protocols import isotropic as iso
 
 # deck keys a restart may change besides [output] and [checkpoint] (the rest is the physics)
-RESTART_MAY_CHANGE = ("run.progress_seconds", "run.slab_axis", "preparation.max_steps",
+RESTART_MAY_CHANGE = ("run.progress_seconds", "run.watchdog_seconds", "run.slab_axis", "preparation.max_steps",
                       "moduli.max_relax_steps")
 
 
 def parser(comm=None):
-    p = driver_parser("python -m pardem.drivers.isotropic", __doc__.split("\n\n")[0], iso.SCHEMA,
-                      comm=comm, steps_help=(gout.STEPS_HELP + "; the run stops at the first equilibrium check (every "
-                                 "preparation.check_every steps) at or after step N"),
-                      restart_help=gout.restart_help(RESTART_MAY_CHANGE), out_default="runs/isotropic-<timestamp>",
-                      epilog="outputs: DIR/isotropic.json, isotropic.csv, isotropic.h5, isotropic.png, "
-                             "force_distribution.png, checkpoints/, paraview/")
+    p = cli.driver_parser("python -m pardem.drivers.isotropic", __doc__.split("\n\n")[0], iso.SCHEMA,
+                          comm=comm, steps_help=(gout.STEPS_HELP + "; the run stops at the first equilibrium check "
+                                                 "(every preparation.check_every steps) at or after step N"),
+                          restart_help=gout.restart_help(RESTART_MAY_CHANGE), out_default="runs/isotropic-<timestamp>",
+                          epilog="outputs: DIR/isotropic.json, isotropic.csv, isotropic.h5, isotropic.png, "
+                                 "force_distribution.png, checkpoints/, paraview/")
     p.add_argument("--pressures", metavar="P1,P2,...",
                    help="target pressures p0 [Pa], comma-separated (overrides preparation.pressures)")
     return p
@@ -67,7 +60,7 @@ def parser(comm=None):
 
 def main(argv=None):
     comm = Communicator()
-    return run_driver(comm, run, parser(comm).parse_args(argv))
+    return cli.run_driver(comm, lambda comm, args: run_protocol(comm, args, Isotropic()), parser(comm).parse_args(argv))
 
 
 def _pressures(text):
@@ -80,104 +73,82 @@ def _pressures(text):
     return sorted(vals)
 
 
-def run(comm, args):
-    with contextlib.ExitStack() as files:   # closes the series files whatever happens
-        return _run(comm, args, files)
+class Isotropic(GranularDriver):
+    name = "isotropic"
+    schema = iso.SCHEMA
+    summary_name = "isotropic.json"
+    restart_may_change = RESTART_MAY_CHANGE
+    restart_what = ("the run length (--steps, preparation.max_steps, moduli.max_relax_steps), "
+                    "run.slab_axis, run.progress_seconds")
+    columns, units, description, int_columns = (iso.SERIES_COLUMNS, iso.SERIES_UNITS, iso.SERIES_DESCRIPTION,
+                                                iso.SERIES_INT)
 
-
-def _run(comm, args, files):
-    t0 = time.perf_counter()
-    meta = None
-    try:
-        if args.restart:
-            meta = gout.inspect_restart(args.restart, "isotropic")
-        deck = read_deck(comm, iso.SCHEMA, args, base=meta["deck"] if meta else None)
+    def check(self, run, deck):
         iso.check_sample(deck)
-        if args.pressures is not None:
-            deck["preparation"]["pressures"] = _pressures(args.pressures)
-        if meta is not None:
-            gout.check_restart(args.restart, meta, deck, iso.SCHEMA, args.steps, RESTART_MAY_CHANGE,
-                               "the run length (--steps, preparation.max_steps, moduli.max_relax_steps), "
-                               "run.slab_axis, run.progress_seconds")
-        checkpoint.parallel_hdf5(deck["checkpoint"]["driver"])   # refuse "mpio" without MPI h5py now
-        if meta is not None:
-            case = granular.restore(comm, args.restart, slab_axis="xyz".index(deck["run"]["slab_axis"]))
-    except (DeckError, checkpoint.CheckpointError, DecompositionError) as err:
-        fail_usage(comm, str(err))
-    pressures = sorted(deck["preparation"]["pressures"])
-    out = args.out or default_out(comm, "isotropic", args.restart)
-    if comm.is_root:
-        os.makedirs(out, exist_ok=True)
-    comm.barrier()
-    n = deck["sample"]["n"]
-    progress = Progress(comm, None, deck["run"]["progress_seconds"], n, quiet=args.quiet)
-    progress.say(f"pardem {pardem.__version__}: isotropic preparation of {n} spheres on {comm.size} "
-                 f"rank(s), p0 = {', '.join(f'{p:g}' for p in pressures)} Pa, output {out}"
-                 + (f", restarted from {args.restart} (step {int(meta['step'])})" if meta else ""))
-    if meta is None:
-        case = iso.build_gas(comm, deck)
-        state, rows = None, []
-    else:
-        state = meta["protocol"]
-        rows = gout.rows_of(meta["series"], iso.SERIES_COLUMNS, iso.SERIES_INT)
-    sim = case.sim
-    series = gout.Series(comm, out, "isotropic", iso.SERIES_COLUMNS, iso.SERIES_UNITS,
-                         iso.SERIES_DESCRIPTION, rows, iso.SERIES_INT)
-    files.callback(series.close)
-    sweep_run = iso.SweepRun(stop=args.steps, state=state)
-    st = sweep_run.state
+        if run.args.pressures is not None:
+            deck["preparation"]["pressures"] = _pressures(run.args.pressures)
 
-    def on_check(sim, b):
-        series.append({
-            "step": sim.step_count, "time": sim.time, "pressure_index": st["index"],
-            "stage": iso.STAGES.index(st["stage"]), "p0": pressures[st["index"]],
-            "pressure": b["pressure"], "solid_fraction": b["solid_volume"] / sim.cell.volume,
-            "coordination": 2.0 * b["n_contacts"] / b["n_elements"], "kinetic": b["kinetic"],
-            "unbalanced": b["unbalanced"], "unbalanced_max": b["unbalanced_max"], "dt": sim.dt,
-            "cell_rate": float(sim.cell.rate[0])})
-    sweep_run.on_check = on_check
-    writer, paraview = gout.writers(case, deck, out, args.restart,
-                                    lambda: (deck, sweep_run.snapshot(), series.rows, iso.SERIES_COLUMNS))
-    sweep_run.operations = [writer] + ([paraview] if paraview is not None else [])
-    fault = FaultInjection.from_environment()     # tests: a crash at a given step (PARDEM_FAULT)
-    if fault:
-        sweep_run.operations.append(fault)
-    stopped = None
-    try:
-        rows, details, case = iso.sweep(comm, deck, pressures, progress, case=case, run=sweep_run)
-    except gout.StepLimit as err:
-        stopped = str(err)
-        rows, details = st["rows"], st["details"]
-    series.close()
-    if deck["checkpoint"]["at_end"]:
-        writer.write(sim)
-    wall = time.perf_counter() - t0
-    if comm.is_root:
-        data = {"rows": rows, "details": details, "criteria": iso.criteria_text(deck), "deck": deck,
-                "n_ranks": comm.size, "dt": float(case.constants["dt"]), "wall_seconds": wall,
+    def build(self, run):
+        return iso.build_gas(run.comm, run.deck)
+
+    def protocol_state(self, run):
+        return run.state["sweep"].snapshot()
+
+    def start(self, run):
+        deck, sim = run.deck, run.sim
+        pressures = sorted(deck["preparation"]["pressures"])
+        n = deck["sample"]["n"]
+        run.progress.say(f"pardem {pardem.__version__}: isotropic preparation of {n} spheres on {run.comm.size} "
+                         f"rank(s), p0 = {', '.join(f'{p:g}' for p in pressures)} Pa, output {run.out}"
+                         + (f", restarted from {run.args.restart} (step {int(run.meta['step'])})" if run.meta else ""))
+        self.open_series(run)
+        sweep_run = iso.SweepRun(stop=run.args.steps, state=run.meta["protocol"] if run.meta else None)
+        st = sweep_run.state
+
+        def on_check(sim, b):
+            run.series.append({
+                "step": sim.step_count, "time": sim.time, "pressure_index": st["index"],
+                "stage": iso.STAGES.index(st["stage"]), "p0": pressures[st["index"]],
+                "pressure": b["pressure"], "solid_fraction": b["solid_volume"] / sim.cell.volume,
+                "coordination": 2.0 * b["n_contacts"] / b["n_elements"], "kinetic": b["kinetic"],
+                "unbalanced": b["unbalanced"], "unbalanced_max": b["unbalanced_max"], "dt": sim.dt,
+                "cell_rate": float(sim.cell.rate[0])})
+        sweep_run.on_check = on_check
+        run.state = {"sweep": sweep_run, "pressures": pressures}
+
+    def execute(self, run):
+        sweep_run = run.state["sweep"]
+        sweep_run.operations = run.operations
+        _, _, run.case = iso.sweep(run.comm, run.deck, run.state["pressures"], run.progress, case=run.case,
+                                   run=sweep_run)
+
+    def summary(self, run):
+        st = run.state["sweep"].state
+        deck = run.deck
+        return {"rows": st["rows"], "details": st["details"], "criteria": iso.criteria_text(deck),
+                "dt": float(run.case.constants["dt"]),
                 "units": {"p0": "Pa", "p": "Pa", "K_affine": "Pa", "K_relaxed": "Pa",
                           "mu_affine": "Pa", "mu_relaxed": "Pa", "Z": "1", "solid_fraction": "1"},
-                "pardem_version": pardem.__version__, "driver": "isotropic", "n_elements": n,
-                "steps": sim.step_count, "time": sim.time, "finished": stopped is None,
-                "stopped": stopped, "restarted_from": args.restart, "checkpoints": writer.written,
-                "series": ["isotropic.csv", "isotropic.h5"]}
-        write_json(os.path.join(out, "isotropic.json"), data)
+                "n_elements": deck["sample"]["n"], "series": ["isotropic.csv", "isotropic.h5"]}
+
+    def finish(self, run, summary):
+        out, rows, details = run.out, summary["rows"], summary["details"]
         written = ["isotropic.json", "isotropic.csv", "isotropic.h5"]
-        if deck["output"]["plot"]:
+        if run.deck["output"]["plot"]:
             if _plot(details, os.path.join(out, "force_distribution.png")):
                 written.append("force_distribution.png")
-            if plot_series(series.rows, os.path.join(out, "isotropic.png")):
+            if plot_series(run.series.rows, os.path.join(out, "isotropic.png")):
                 written.append("isotropic.png")
         print(format_table(rows))
         bad = [d["p0"] for d in details if not d["converged"]]
         if bad:
             print(f"warning: no static equilibrium within preparation.max_steps at p0 = "
                   f"{', '.join(f'{p:g}' for p in bad)} Pa (see details in isotropic.json)")
-        if stopped:
-            print(f"{stopped}: {len(rows)} of {len(pressures)} pressures done; continue with --restart "
-                  f"{writer.written[-1] if writer.written else '(no checkpoint: checkpoint.at_end = false)'}")
-        print(f"wrote {', '.join(os.path.join(out, w) for w in written)} in {wall:.1f} s")
-    return EXIT_OK
+        if run.stopped:
+            print(f"{run.stopped}: {len(rows)} of {len(run.state['pressures'])} pressures done; continue with "
+                  f"--restart {run.writer.written[-1] if run.writer.written else '(no checkpoint: checkpoint.at_end = false)'}")
+        print(f"wrote {', '.join(os.path.join(out, w) for w in written)} in {summary['wall_seconds']:.1f} s")
+        return cli.EXIT_OK
 
 
 def format_table(rows):

@@ -27,100 +27,69 @@ checkpoint to continue from.
 Exit codes: 0 done, 1 unexpected error (all ranks stop), 2 bad input (one line naming the field),
 3 the run became unstable.
 """
-import contextlib
 import csv
-import os
 import sys
 import time
 
 import pardem
-from pardem.config import DeckError
-from pardem.drivers.cli import EXIT_OK, default_out, driver_parser, fail_usage, read_deck, run_driver
-from pardem.engine import granular
-from pardem.engine.errors import DecompositionError
-from pardem.engine.simulation import FaultInjection
-from pardem.io import checkpoint
-from pardem.io.progress import Progress
-from pardem.io.summary import write_json
+from pardem.drivers import cli
+from pardem.drivers.runner import GranularDriver, run_protocol
 from pardem.parallel.communicator import Communicator
 from pardem.protocols import granular_output as gout
 from pardem.protocols import triaxial
 
 # deck keys a restart may change besides [output] and [checkpoint] (the rest is the physics)
-RESTART_MAY_CHANGE = ("run.progress_seconds", "run.slab_axis", "loading.strain", "preparation.max_steps")
+RESTART_MAY_CHANGE = ("run.progress_seconds", "run.watchdog_seconds", "run.slab_axis", "loading.strain", "preparation.max_steps")
 
 
 def parser(comm=None):
-    p = driver_parser("python -m pardem.drivers.triaxial", __doc__.split("\n\n")[0], triaxial.SCHEMA,
-                      comm=comm, steps_help=gout.STEPS_HELP,
-                      restart_help=gout.restart_help(RESTART_MAY_CHANGE), out_default="runs/triaxial-<timestamp>",
-                      deck_title="deck keys and defaults (drivers/triaxial_cemented.toml)",
-                      epilog="outputs: DIR/triaxial.csv, triaxial.h5, triaxial.json, triaxial.png, "
-                             "checkpoints/, paraview/")
-    return p
+    return cli.driver_parser("python -m pardem.drivers.triaxial", __doc__.split("\n\n")[0], triaxial.SCHEMA,
+                             comm=comm, steps_help=gout.STEPS_HELP,
+                             restart_help=gout.restart_help(RESTART_MAY_CHANGE),
+                             out_default="runs/triaxial-<timestamp>",
+                             deck_title="deck keys and defaults (drivers/triaxial_cemented.toml)",
+                             epilog="outputs: DIR/triaxial.csv, triaxial.h5, triaxial.json, triaxial.png, "
+                                    "checkpoints/, paraview/")
 
 
 def main(argv=None):
     comm = Communicator()
-    return run_driver(comm, run, parser(comm).parse_args(argv))
+    return cli.run_driver(comm, lambda comm, args: run_protocol(comm, args, Triaxial()), parser(comm).parse_args(argv))
 
 
-def run(comm, args):
-    with contextlib.ExitStack() as files:   # closes the series files whatever happens
-        return _run(comm, args, files)
+class Triaxial(GranularDriver):
+    name = "triaxial"
+    schema = triaxial.SCHEMA
+    summary_name = "triaxial.json"
+    error_types = (ValueError,)
+    restart_may_change = RESTART_MAY_CHANGE
+    restart_what = "the run length (--steps, loading.strain, preparation.max_steps), run.slab_axis, run.progress_seconds"
+    columns, units, description, int_columns = (triaxial.COLUMNS, triaxial.UNITS, triaxial.DESCRIPTION,
+                                                triaxial.INT_COLUMNS)
+    slab_axes = triaxial.AXES
 
-
-def _run(comm, args, files):
-    t0 = time.perf_counter()
-    meta = None
-    try:
-        if args.restart:
-            meta = gout.inspect_restart(args.restart, "triaxial")
-        deck = read_deck(comm, triaxial.SCHEMA, args, base=meta["deck"] if meta else None)
+    def check(self, run, deck):
         triaxial.check_deck(deck)
-        if meta is not None:
-            gout.check_restart(args.restart, meta, deck, triaxial.SCHEMA, args.steps, RESTART_MAY_CHANGE,
-                               "the run length (--steps, loading.strain, preparation.max_steps), "
-                               "run.slab_axis, run.progress_seconds")
-        checkpoint.parallel_hdf5(deck["checkpoint"]["driver"])   # refuse "mpio" without MPI h5py now
-        if meta is None:
-            case = triaxial.build(comm, deck)
-        else:
-            case = granular.restore(comm, args.restart, slab_axis=triaxial.AXES.index(deck["run"]["slab_axis"]))
-    except (DeckError, ValueError, checkpoint.CheckpointError, DecompositionError) as err:
-        fail_usage(comm, str(err))
-    out = args.out or default_out(comm, "triaxial", args.restart)
-    if comm.is_root:
-        os.makedirs(out, exist_ok=True)
-    comm.barrier()
-    pc = deck["loading"]["confining_pressure"]
-    sim = case.sim
-    n = case.constants["n_elements"]
-    progress = Progress(comm, None, deck["run"]["progress_seconds"], n, quiet=args.quiet)
-    if meta is None:
-        state = {"driver": "triaxial", "stage": "prepare", "met": 0, "checked_step": -1, "prep": None,
-                 "n_cem": None, "preparation_seconds": None}
-        rows = []
-    else:
-        state = meta["protocol"]
-        rows = gout.rows_of(meta["series"], triaxial.COLUMNS, triaxial.INT_COLUMNS)
-    series = gout.Series(comm, out, "triaxial", triaxial.COLUMNS, triaxial.UNITS, triaxial.DESCRIPTION,
-                         rows, triaxial.INT_COLUMNS)
-    files.callback(series.close)
-    writer, paraview = gout.writers(case, deck, out, args.restart,
-                                    lambda: (deck, state, series.rows, triaxial.COLUMNS))
-    ops = [writer] + ([paraview] if paraview is not None else [])
-    fault = FaultInjection.from_environment()     # tests: a crash at a given step (PARDEM_FAULT)
-    if fault:
-        ops.append(fault)
-    progress.say(f"pardem {pardem.__version__} triaxial: {n} spheres on {comm.size} rank(s), dt = {sim.dt:.4g} s; "
-                 f"isotropic compression to pc = {pc:.4g} Pa; output {out}"
-                 + (f"; restarted from {args.restart} (step {sim.step_count}, {state['stage']})" if meta else ""))
-    stopped = None
-    try:
+
+    def build(self, run):
+        run.state = {"driver": "triaxial", "stage": "prepare", "met": 0, "checked_step": -1, "prep": None,
+                     "n_cem": None, "preparation_seconds": None}
+        return triaxial.build(run.comm, run.deck)
+
+    def start(self, run):
+        self.open_series(run)
+        pc = run.deck["loading"]["confining_pressure"]
+        sim = run.sim
+        run.progress.say(f"pardem {pardem.__version__} triaxial: {run.case.constants['n_elements']} spheres on "
+                         f"{run.comm.size} rank(s), dt = {sim.dt:.4g} s; isotropic compression to pc = {pc:.4g} Pa; "
+                         f"output {run.out}" + (f"; restarted from {run.args.restart} (step {sim.step_count}, "
+                                                f"{run.state['stage']})" if run.meta else ""))
+
+    def execute(self, run):
+        case, deck, state, progress = run.case, run.deck, run.state, run.progress
         if state["stage"] == "prepare":
-            state["prep"] = triaxial.prepare(case, deck, progress, state, ops, args.steps)
-            state["preparation_seconds"] = time.perf_counter() - t0
+            state["prep"] = triaxial.prepare(case, deck, progress, state, run.operations, run.args.steps)
+            state["preparation_seconds"] = time.perf_counter() - run.t_start
             prep = state["prep"]
             progress.say(f"prepared in {prep['steps']} steps ({state['preparation_seconds']:.1f} s): p = "
                          f"{prep['pressure']:.4g} Pa, solid fraction {prep['solid_fraction']:.4f}, "
@@ -132,40 +101,37 @@ def _run(comm, args, files):
                          f"eps_a = {deck['loading']['strain']} at {deck['loading']['strain_rate']} 1/s "
                          f"({triaxial.loading_steps(case, deck)} steps)")
         if state["stage"] == "load":
-            triaxial.load(case, deck, rows=list(series.rows), operations=ops, progress=progress,
-                          stop=args.steps, on_row=series.append)
+            triaxial.load(case, deck, rows=list(run.series.rows), operations=run.operations, progress=progress,
+                          stop=run.args.steps, on_row=run.series.append)
             state["stage"] = "done"
-    except gout.StepLimit as err:
-        stopped = str(err)
-    series.close()
-    if deck["checkpoint"]["at_end"]:
-        writer.write(sim)
-    wall = time.perf_counter() - t0
-    rows = series.rows
-    result = triaxial.summary(rows, pc) if rows else {}
-    result["cements_lost_at_rebuilds"] = int(round(float(comm.sum(float(sim.contacts.lost)))))
-    if comm.is_root:
-        write_json(os.path.join(out, "triaxial.json"), {
-            **result, "confining_pressure": pc, "n_elements": n, "cemented_pairs": state["n_cem"],
-            "n_ranks": comm.size, "dt": sim.dt, "steps": sim.step_count, "preparation": state["prep"],
-            "wall_seconds": wall, "preparation_seconds": state["preparation_seconds"], "deck": deck,
-            "pardem_version": getattr(pardem, "__version__", None), "driver": "triaxial",
-            "finished": stopped is None, "stopped": stopped, "restarted_from": args.restart,
-            "checkpoints": writer.written, "series": ["triaxial.csv", "triaxial.h5"]})
-        if deck["output"]["plot"] and rows:
-            plot(os.path.join(out, "triaxial.png"), rows, pc)
-    if stopped and comm.is_root:
-        print(f"{stopped}; continue with --restart "
-              f"{writer.written[-1] if writer.written else '(no checkpoint: checkpoint.at_end = false)'}",
-              flush=True)
-    elif rows:
-        progress.say(
-            f"peak q = {result['peak_deviator']:.4g} Pa ({result['peak_stress_ratio']:.3f} pc) at eps_a = "
-            f"{result['strain_at_peak']:.4f}; final eps_v = {result['final_volumetric_strain']:.4g}, broken "
-            f"fraction {result['final_broken_fraction']:.3f}; lateral stress within "
-            f"{100 * result['lateral_stress_error_max']:.2f} % of pc (mean "
-            f"{100 * result['lateral_stress_error_mean']:.2f} %); {wall:.1f} s; outputs in {out}")
-    return EXIT_OK
+
+    def summary(self, run):
+        pc = run.deck["loading"]["confining_pressure"]
+        rows = run.series.rows
+        result = triaxial.summary(rows, pc) if rows else {}
+        result["cements_lost_at_rebuilds"] = int(round(float(run.comm.sum(float(run.sim.contacts.lost)))))
+        return {**result, "confining_pressure": pc, "n_elements": run.case.constants["n_elements"],
+                "cemented_pairs": run.state["n_cem"], "preparation": run.state["prep"],
+                "preparation_seconds": run.state["preparation_seconds"],
+                "series": ["triaxial.csv", "triaxial.h5"]}
+
+    def finish(self, run, summary):
+        rows, pc = run.series.rows, summary["confining_pressure"]
+        if run.deck["output"]["plot"] and rows:
+            plot(f"{run.out}/triaxial.png", rows, pc)
+        if run.stopped:
+            print(f"{run.stopped}; continue with --restart "
+                  f"{run.writer.written[-1] if run.writer.written else '(no checkpoint: checkpoint.at_end = false)'}",
+                  flush=True)
+        elif rows:
+            run.progress.say(
+                f"peak q = {summary['peak_deviator']:.4g} Pa ({summary['peak_stress_ratio']:.3f} pc) at eps_a = "
+                f"{summary['strain_at_peak']:.4f}; final eps_v = {summary['final_volumetric_strain']:.4g}, broken "
+                f"fraction {summary['final_broken_fraction']:.3f}; lateral stress within "
+                f"{100 * summary['lateral_stress_error_max']:.2f} % of pc (mean "
+                f"{100 * summary['lateral_stress_error_mean']:.2f} %); {summary['wall_seconds']:.1f} s; "
+                f"outputs in {run.out}")
+        return cli.EXIT_OK
 
 
 def read_series(path):

@@ -24,14 +24,33 @@ spheres separate beyond the reach is dropped with its remaining fraction of forc
 A pair with one ghost end is computed by both ranks from bitwise-identical inputs, so both hold
 the same history; the energy and the Love-Weber sums count a pair on the rank owning its lower-gid
 end only.
+
+Reproducible runs (``reproducible``, issue 16 item 8: the same bits on any number of ranks): the
+list is ordered by pair key (lower gid, then higher gid) at every build, so that each element
+adds its contact forces in an order fixed by the gids alone (pairs ``(a, k)`` by ``a``, then
+``(k, b)`` by ``b``), whatever the rank's rows and cell grid; every pair is computed with its
+lower-gid end as ``i``, so ``f_ij = -f_ji`` bitwise on both ranks of a boundary pair. The
+Love-Weber sums and the energy are accumulated exactly (``physics.exact_accumulate``) and
+reduced by ``global_sums`` (``parallel.exact_sum``), independent of the decomposition.
 """
 import numpy as np
 
+from pardem.parallel import exact_sum
+from pardem.physics import exact_accumulate as xa
 from pardem.physics.contact_frame import NO_SHIFT
 from pardem.physics.neighbours import VerletList, max_displacement2
 from pardem.physics.timestep import contact_stiffness
 
 KEY_BASE = np.int64(1) << np.int64(31)
+
+# the fields of ``Contacts.sums`` [10] (``physics.contact_frame.add_love_weber``): the Love-Weber sums
+# ``sum d_a F_i,b`` [N m] in row-major order (the stress is ``sums[STRESS].reshape(3, 3) / V``,
+# tension positive) and the number of pairs in contact, each this rank's share
+STRESS = slice(0, 9)
+N_TOUCHING = 9
+
+# default of ``Contacts(reproducible=None)``: lists in key order and exact sums (module docstring)
+REPRODUCIBLE = True
 
 
 def pair_keys(gid_i, gid_j):
@@ -66,7 +85,11 @@ class Contacts:
     in reach (0 when the parameters are checked, see the module docstring).
     """
 
-    def __init__(self, law, params, skin, cell=None, reach=0.0):
+    def __init__(self, law, params, skin, cell=None, reach=0.0, reproducible=None):
+        self.reproducible = REPRODUCIBLE if reproducible is None else bool(reproducible)
+        self.xacc = xa.zeros(10)    # exact Love-Weber sums (0-8) and energy (9) of this rank
+        self.exact_ready = False    # xacc holds the sums of the last force evaluation
+        self.exact_ok = True        # ... and all its terms were finite
         self.law = law
         self.params = params
         self.width = int(law.history_width(params))
@@ -144,6 +167,9 @@ class Contacts:
             must = self.law.persistent_rows(table["history"])
             if np.any(must):   # e.g. an intact cement whose spheres moved beyond the reach
                 self.lost += int(np.count_nonzero(~np.isin(np.unique(table_keys[must]), keys)))
+        if self.reproducible:
+            order = np.argsort(keys, kind="stable")
+            pairs, shifts, keys = pairs[order], shifts[order], keys[order]
         self.adopt(pairs[:, 0], pairs[:, 1], shifts, keys,
                    lookup(keys, table_keys, table["history"], self.width))
         if self.cell is not None:
@@ -158,6 +184,7 @@ class Contacts:
         self.history = np.ascontiguousarray(history, dtype=np.float64)
         self.shift = self.cell.shift_metres(self.shifts) if self.periodic else None
         self.builds += 1
+        self.exact_ready = False
 
     def budget_used(self, moved2):
         """True when the skin is used up: the largest displacement ``sqrt(moved2)`` [m] (fluctuation
@@ -206,10 +233,70 @@ class Contacts:
                 self.shift = self.cell.shift_metres(self.shifts)
             rate = self.cell.rate
         self.sums[:] = 0.0
+        # exact sums when something may read them: a servo (every step), or an operation (the
+        # steps with the energy, LAMMPS' eflag); the other steps keep the cheap register sums
+        servo = self.cell is not None and self.cell.servo is not None
+        self.exact_ready = False
+        if self.reproducible and (with_energy or servo):
+            self.xacc[:] = 0
+            flag = self.law.compute(self.params, elements, self.i, self.j, self.history, dt,
+                                    self.shift, rate, self.sums, with_energy=with_energy,
+                                    xacc=self.xacc)
+            self.exact_ok = bool(flag == 0.0)
+            self.exact_ready = True
+            local = xa.value(self.xacc) if self.exact_ok else np.full(10, np.nan)
+            self.sums[STRESS] = local[:9]     # this rank's share, rounded once (writers, checks)
+            self.energy = float(local[9]) if with_energy else float("nan")
+            return self.energy
         self.energy = float(self.law.compute(self.params, elements, self.i, self.j, self.history,
                                              dt, self.shift, rate, self.sums,
                                              with_energy=with_energy))
         return self.energy
+
+    @property
+    def n_touching(self):
+        """This rank's number of pairs in contact at the last force evaluation (a float count)."""
+        return self.sums[N_TOUCHING]
+
+    def global_sums(self, comm):
+        """The global Love-Weber sums [9] and contact energy [J] of the last force evaluation
+        (collective): exact and the same bits on any number of ranks when ``reproducible`` (and
+        the sums of the last evaluation are at hand, else the float sum of the per-rank shares,
+        e.g. just after a restart); returns ``(sums [9], energy)``."""
+        if self.reproducible and self.exact_ready:   # the same on every rank
+            out = exact_sum.total(comm, self.xacc, self.exact_ok)
+            return out[:9], float(out[9])
+        out = np.asarray(comm.sum(np.concatenate([self.sums[STRESS], [self.energy]])))
+        return out[:9], float(out[9])
+
+    def exact_state(self):
+        """This rank's exact sums of the last force evaluation (JSON friendly: ``None`` when there
+        are none, else ``[ok, limbs [10][NLIMB] ints]``), for a checkpoint's run state: a restart
+        then reduces the same global sums as the uninterrupted run before its first step."""
+        if not (self.reproducible and self.exact_ready):
+            return None
+        return [bool(self.exact_ok), self.xacc.tolist()]
+
+    def restore_exact_state(self, states, rank, same):
+        """Put back ``exact_state``: ``states`` is every writing rank's (a list), ``rank`` this
+        rank; ``same``: the rank count is the one that wrote them (each rank takes its own), else
+        rank 0 takes their exact total and the others zeros (the global sums keep their bits).
+        Call on every rank."""
+        if not self.reproducible or not states or any(s is None for s in states):
+            self.exact_ready = False
+            return
+        if same:
+            ok, limbs = states[rank]
+            self.xacc[:] = np.asarray(limbs, dtype=np.int64)
+        else:
+            ok = all(bool(s[0]) for s in states)
+            self.xacc[:] = 0
+            if rank == 0:
+                for s in states:
+                    self.xacc += np.asarray(s[1], dtype=np.int64)   # limbs < 2^32: no overflow
+                xa.normalize(self.xacc)
+        self.exact_ok = bool(ok)
+        self.exact_ready = True
 
     def stiffness(self, elements):
         """This rank's ``(omega2, kd2)`` of the listed pairs in contact (``timestep.contact_stiffness``):
@@ -222,6 +309,19 @@ class Contacts:
                                         self.shift is not None, e.x, e.radius, e.mass, e.n_owned,
                                         k_constant, k_hertz)
         return float(omega2), float(kd2)
+
+    def global_affine_stiffness(self, comm, elements):
+        """The global ``kd2 = sum k |d|^2`` [N m] of ``stiffness`` (collective; exact, the same bits
+        on any number of ranks, when ``reproducible``: it caps the pressure servo's gain)."""
+        if not self.reproducible:
+            return float(comm.sum(self.stiffness(elements)[1]))
+        e = elements
+        k_constant, k_hertz = self.law.normal_stiffness(self.params)
+        acc = xa.zeros(1)
+        ok = xa.affine_stiffness_terms(self.i, self.j, NO_SHIFT if self.shift is None else self.shift,
+                                       self.shift is not None, e.x, e.radius, e.n_owned,
+                                       float(k_constant), float(k_hertz), acc)
+        return float(exact_sum.total(comm, acc, ok)[0])
 
     def counted_once(self, n_owned):
         """Mask of the pairs this rank writes to files and sums (lower-gid end owned)."""

@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pardem.engine.contacts import Contacts, pair_keys
+from pardem.engine import snapshot
+from pardem.engine.contacts import Contacts
 from pardem.io import checkpoint
-from pardem.io.checkpoint import CONTACT_DATASETS, ELEMENT_DATASETS
 from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs
 from pardem.engine.periodic_cell import PeriodicCell
@@ -126,59 +126,12 @@ def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, 
     return GranularCase(sim=sim, constants=constants)
 
 
-def checkpoint_payload(case):
-    """(groups, series, attrs) for ``checkpoint.write_checkpoint`` (every rank)."""
-    sim = case.sim
-    e, c = sim.elements, sim.contacts
-    n = e.n_owned
-    elements = {k: getattr(e, k)[:n] for k in ELEMENT_DATASETS if k != "x_build"}
-    x_build = sim.domain.x_build if sim.domain is not None else c.reference_positions()[:n]
-    elements["x_build"] = x_build
-    bonds = Bonds.empty()
-    contacts = {"gid_i": e.gid[c.i], "gid_j": e.gid[c.j], "shifts": c.shifts, "history": c.history}
-    slabs = sim.domain.slabs if sim.domain is not None else None
-    attrs = {"step": sim.step_count, "time": sim.time, "deck": {"kind": "granular"},
-             "constants": case.constants, "cell": sim.cell.state(),
-             "rng_state": {"generator": None}, "plate_positions": np.zeros(0),
-             "plate_velocities": np.zeros(0), "slab_axis": case.constants["slab_axis"],
-             "slab_cut_s": slabs.cut_s if slabs is not None else np.zeros(0),
-             "slab_cut_g": slabs.cut_g if slabs is not None else np.zeros(0, dtype=np.int64),
-             "run_state": run_state(sim)}
-    return {"elements": elements, "bonds": {k: getattr(bonds, k) for k in checkpoint.BOND_DATASETS},
-            "contacts": contacts}, {}, attrs
-
-
-def run_state(sim):
-    """What a bit-for-bit restart needs beyond the arrays and constants (same on every rank):
-    the current step and its clock (an adaptive step changes them), the current global damping,
-    the last step's stress, and each rank's contact sums, contact energy and lost-cement count
-    (read between steps by the protocols' checks). Collective."""
-    c = sim.contacts
-    per_rank = sim.comm.allgather({"sums": [float(v) for v in c.sums], "energy": float(sim.contact_energy),
-                                   "lost": int(c.lost)})
-    return {"dt": float(sim.dt), "clock": [int(sim._clock[0]), float(sim._clock[1])],
-            "time": float(sim.time), "viscous_damping": float(sim.viscous_damping),
-            "stress": np.asarray(sim.stress, dtype=float).tolist(), "per_rank": per_rank}
-
-
-def _restore_run_state(sim, rs, same):
-    """Put back ``run_state`` (on another rank count, rank 0 takes the global sums)."""
-    sim.dt = float(rs["dt"])
-    sim._clock = (int(rs["clock"][0]), float(rs["clock"][1]))
-    sim.time = float(rs["time"])
-    sim.viscous_damping = float(rs["viscous_damping"])
-    sim.stress = np.asarray(rs["stress"], dtype=np.float64).reshape(3, 3)
-    per = rs["per_rank"]
-    c = sim.contacts
-    if same:
-        mine = per[sim.comm.rank]
-        c.sums[:] = mine["sums"]
-        sim.contact_energy = float(mine["energy"])
-        c.lost = int(mine["lost"])
-    elif sim.comm.is_root:
-        c.sums[:] = np.sum([q["sums"] for q in per], axis=0)
-        sim.contact_energy = float(sum(q["energy"] for q in per))
-        c.lost = int(sum(q["lost"] for q in per))
+def checkpoint_payload(case, attrs=None):
+    """(groups, series, attrs) for ``checkpoint.write_checkpoint`` (every rank): the case's state
+    (``pardem.engine.snapshot.payload``), its constants and the caller's ``attrs``."""
+    groups, attrs = snapshot.payload(case.sim, {"deck": {"kind": "granular"}, "constants": case.constants,
+                                                "slab_axis": case.constants["slab_axis"], **(attrs or {})})
+    return groups, {}, attrs
 
 
 def write(case, path, mode="auto"):
@@ -186,87 +139,21 @@ def write(case, path, mode="auto"):
     checkpoint.write_checkpoint(path, case.sim.comm, groups, series, attrs, mode=mode)
 
 
-def restore(comm, path, slab_axis=None):
+def restore(comm, path, slab_axis=None, meta=None):
     """The granular case of checkpoint ``path`` on ``comm`` (any number of ranks; ``slab_axis``
     re-cuts the slabs along another axis). On the rank count and axis that wrote it the run
-    continues bit for bit (with the ``run_state`` of checkpoints that have one)."""
-    import json
-    meta = checkpoint.inspect(path)
+    continues bit for bit. ``meta``: the file's attributes when already inspected."""
+    meta = checkpoint.inspect(path, comm=comm) if meta is None else meta
     c = meta["constants"]
-    cell_state = meta["cell"]
-    cell = PeriodicCell.from_state(json.loads(cell_state) if isinstance(cell_state, str) else cell_state)
-    if slab_axis is not None and int(slab_axis) != int(c["slab_axis"]):
+    cell = snapshot.cell_of(meta)
+    if slab_axis is not None:
         c["slab_axis"] = int(slab_axis)
-        meta["n_ranks"] = -1       # the stored slabs do not apply: re-cut as for another rank count
-    axis = int(c["slab_axis"])
-    same = int(meta["n_ranks"]) == comm.size
-    names = list(ELEMENT_DATASETS)
-    if same:
-        counts = np.asarray(meta["owned_counts"], dtype=np.int64)
-        off = int(counts[:comm.rank].sum())
-        el = checkpoint.read_rows(path, "elements", names, slice(off, off + int(counts[comm.rank])))
-        ccounts = np.asarray(meta["contacts_counts"], dtype=np.int64)
-        coff = int(ccounts[:comm.rank].sum())
-        cl = checkpoint.read_rows(path, "contacts", list(CONTACT_DATASETS),
-                                  slice(coff, coff + int(ccounts[comm.rank])))
-        slabs = Slabs(axis, meta["slab_cut_s"], meta["slab_cut_g"]) if comm.size > 1 else None
-    else:
-        N = int(meta["n_elements"])
-        stripe = slice(comm.rank * N // comm.size, (comm.rank + 1) * N // comm.size)
-        chunk = checkpoint.read_rows(path, "elements", ["x", "gid"], stripe)
-        slabs = None
-        if comm.size > 1:
-            slabs = Slabs.balanced(comm, axis, chunk["x"][:, axis], chunk["gid"])
-            el = checkpoint.read_rows(path, "elements", names, (["x", "gid"], lambda d: slabs.owner(
-                d["x"][:, axis], d["gid"]) == comm.rank))
-        else:
-            el = checkpoint.read_rows(path, "elements", names, slice(0, N))
-        cl = checkpoint.read_rows(path, "contacts", list(CONTACT_DATASETS), slice(0, None))
-    el["inv_mass"] = 1.0 / el["mass"]
-    el["inv_inertia"] = 1.0 / el["inertia"]
-    e = Elements.unpack([el], len(el["gid"]), copy=False)
     contacts = Contacts(LAWS[c["law"]], law_params(c["law"], c["params"]), c["skin"], cell,
                         reach=c["reach"])
-    bonds = Bonds.empty()
-    domain = None
-    if same:
-        if comm.size > 1:
-            domain = SlabComm(comm, slabs, c["reach"], c["skin"], balance_every=c["balance_every"],
-                              cell=cell)
-            e, bonds = domain.borders(e, bonds, extra=c["skin"])
-            domain.x_build = el["x_build"].copy()
-            err = None
-            try:
-                contacts.restore(e, cl["gid_i"], cl["gid_j"], cl["shifts"], cl["history"])
-            except ValueError as exc:
-                err = exc
-            if comm.any(err is not None):    # every rank stops, none is left waiting
-                raise err or ValueError("a stored contact's element is missing on another rank")
-        else:
-            contacts.restore(e, cl["gid_i"], cl["gid_j"], cl["shifts"], cl["history"],
-                             x_build=el["x_build"])
-        e.f[:e.n_owned] = el["f"]      # borders keeps the owned rows in their order
-        e.t[:e.n_owned] = el["t"]
-    else:
-        live = np.any(cl["history"] != 0.0, axis=1)
-        keys, first = np.unique(pair_keys(cl["gid_i"][live], cl["gid_j"][live]), return_index=True)
-        table = {k: cl[k][live][first] for k in ("gid_i", "gid_j", "history")}
-        if comm.size > 1:
-            domain = SlabComm(comm, slabs, c["reach"], c["skin"], balance_every=c["balance_every"],
-                              cell=cell)
-            e, bonds, table = domain.setup_with_pairs(e, bonds, table)
-        else:
-            cell.wrap(e)
-        contacts.rebuild(e, bonds, table)
-        srt = np.argsort(el["gid"])     # forces of the stored state, by gid (rows were reordered)
-        order = srt[np.searchsorted(el["gid"][srt], e.gid[:e.n_owned])]
-        e.f[:e.n_owned] = el["f"][order]
-        e.t[:e.n_owned] = el["t"][order]
-    sim = Simulation(comm, e, bonds, None, c["dt"], domain=domain, contacts=contacts, cell=cell,
-                     viscous_damping=c["viscous_damping"])
-    sim.step_count = int(meta["step"])
-    sim.time = sim.step_count * sim.dt
-    rs = meta.get("run_state")
-    if rs is not None:
-        _restore_run_state(sim, json.loads(rs) if isinstance(rs, (str, bytes)) else rs, same)
+    parts = snapshot.read(comm, path, meta, int(c["slab_axis"]), contacts=contacts,
+                          slab_comm=lambda slabs: SlabComm(comm, slabs, c["reach"], c["skin"],
+                                                           balance_every=c["balance_every"], cell=cell))
+    sim = Simulation(comm, parts.elements, parts.bonds, None, c["dt"], domain=parts.domain,
+                     contacts=contacts, cell=cell, viscous_damping=c["viscous_damping"])
+    snapshot.resume(sim, meta, parts.same)
     return GranularCase(sim=sim, constants=c)

@@ -1,7 +1,9 @@
 """Global measurements: plate forces and the least-squares strain. docs/physics.md section 5.
 
 Each rank sums over its owned elements; one ``Communicator.sum`` completes the sums, so results do
-not depend on the number of ranks beyond floating-point summation order.
+not depend on the number of ranks beyond floating-point summation order; the granular measures of
+``reproducible`` contacts are exact sums instead (``parallel.exact_sum``): the same bits on any
+number of ranks.
 
 Strain: the displacement field ``U = x - x0`` of the kept elements (``FLAG_NEAR_PLATE`` unset) is
 fitted by ``U = H X0 + c`` in the least-squares sense; ``eps = (H + H^T) / 2``. Compression is
@@ -11,6 +13,7 @@ import numpy as np
 from numba import njit
 
 from pardem.engine.state import FLAG_NEAR_PLATE
+from pardem.parallel import exact_sum
 
 
 @njit(cache=True, error_model="numpy")
@@ -122,6 +125,17 @@ def overlap_volume(x, radius, pi, pj, shift, periodic, n_owned):
     ``pi (R1 + R2 - d)^2 (d^2 + 2 d (R1 + R2) - 3 (R1 - R2)^2) / (12 d)``.
     """
     v = 0.0
+    terms = overlap_volumes(x, radius, pi, pj, shift, periodic, n_owned)
+    for p in range(pi.shape[0]):
+        v += terms[p]
+    return v
+
+
+@njit(cache=True, error_model="numpy")
+def overlap_volumes(x, radius, pi, pj, shift, periodic, n_owned):
+    """The lens volume [m^3] of each pair [n_pairs] (``overlap_volume``'s terms; 0 for the pairs
+    not overlapping or whose ``i`` is a ghost), for an exact sum."""
+    out = np.zeros(pi.shape[0])
     for p in range(pi.shape[0]):
         i = pi[p]
         if i >= n_owned:
@@ -140,8 +154,8 @@ def overlap_volume(x, radius, pi, pj, shift, periodic, n_owned):
             continue
         d = np.sqrt(d2)
         h = s - d
-        v += np.pi * h * h * (d2 + 2.0 * d * s - 3.0 * (r1 - r2) ** 2) / (12.0 * d)
-    return v
+        out[p] = np.pi * h * h * (d2 + 2.0 * d * s - 3.0 * (r1 - r2) ** 2) / (12.0 * d)
+    return out
 
 
 def granular_measures(sim):
@@ -156,9 +170,21 @@ def granular_measures(sim):
     n = e.n_owned
     spheres = float(np.sum(4.0 / 3.0 * np.pi * e.radius[:n] ** 3))
     shift = c.shift if c.shift is not None else np.zeros((0, 3))
-    lens = overlap_volume(e.x, e.radius, c.i, c.j, shift, c.shift is not None, n)
     kin = sim.kinetic_energy()
-    g = sim.comm.sum(np.concatenate([c.sums, [spheres, lens, n, sim.contact_energy]]))
+    if c.reproducible:
+        # the same bits on any number of ranks: exact sums of the per-element and per-pair terms
+        sums, energy = c.global_sums(sim.comm)
+        lens = overlap_volumes(e.x, e.radius, c.i, c.j, shift, c.shift is not None, n)
+        vols = 4.0 / 3.0 * np.pi * e.radius[:n] ** 3
+        cols = np.zeros((max(n, len(lens)), 2))
+        cols[:n, 0] = vols
+        cols[:len(lens), 1] = lens
+        vl = exact_sum.exact_sum(sim.comm, cols)
+        counts = sim.comm.sum(np.array([c.n_touching, n], dtype=np.float64))   # integers: exact
+        g = np.concatenate([sums, [counts[0], vl[0], vl[1], counts[1], energy]])
+    else:
+        lens = overlap_volume(e.x, e.radius, c.i, c.j, shift, c.shift is not None, n)
+        g = sim.comm.sum(np.concatenate([c.sums, [spheres, lens, n, sim.contact_energy]]))
     stress = g[:9].reshape(3, 3) / sim.cell.volume
     return {"stress": stress, "pressure": float(-np.trace(stress) / 3.0),
             "Z": float(2.0 * g[9] / g[12]), "n_contacts": int(round(g[9])),

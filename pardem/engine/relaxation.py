@@ -16,7 +16,8 @@ frictionless contacts only, so the adaptive step refuses contacts with friction.
 """
 import numpy as np
 
-from pardem.physics import fire
+from pardem.parallel import exact_sum
+from pardem.physics import exact_accumulate, fire
 
 
 class Fire:
@@ -49,6 +50,17 @@ class Fire:
         w2 = sim.comm.max(c.stiffness(sim.elements)[0])
         return self.safety * 2.0 / np.sqrt(w2) if w2 > 0.0 else np.inf
 
+    @staticmethod
+    def power(sim):
+        """Global ``(F . v, |v|^2, |F|^2)`` (collective): summed exactly, the same bits on any
+        number of ranks, when the contacts are ``reproducible`` (FIRE's decisions feed back)."""
+        e = sim.elements
+        if sim.contacts is not None and sim.contacts.reproducible:
+            acc = exact_accumulate.zeros(3)
+            ok = exact_accumulate.power_terms(e.v, e.f, e.n_owned, acc)
+            return tuple(float(v) for v in exact_sum.total(sim.comm, acc, ok))
+        return tuple(float(v) for v in sim.comm.sum(np.array(fire.power_sums(e.v, e.f, e.n_owned))))
+
     def __call__(self, sim):
         e = sim.elements
         adaptive = self.dt_max is not None
@@ -57,7 +69,7 @@ class Fire:
             if sim.dt > self.dt_stable:   # stiffer contacts: stability first, dt_min or not
                 sim.set_dt(self.dt_stable)
         self.calls += 1
-        p, vv, ff = sim.comm.sum(np.array(fire.power_sums(e.v, e.f, e.n_owned)))
+        p, vv, ff = self.power(sim)
         if p > 0.0:
             if ff > 0.0:
                 fire.mix(e.v, e.f, self.alpha, np.sqrt(vv / ff), e.n_owned)

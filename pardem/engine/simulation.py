@@ -15,8 +15,13 @@ from typing import Protocol
 
 import numpy as np
 
-from pardem.engine.errors import InjectedFault, InstabilityError
-from pardem.physics import walls
+from pardem.config import DeckError
+from pardem.engine import stop
+from pardem.parallel import watchdog
+from pardem.engine.errors import InjectedFault, InstabilityError, Interrupted
+from pardem.parallel import exact_sum
+from pardem.physics import exact_accumulate, walls
+from pardem.physics.finite import first_nonfinite
 from pardem.physics.beam import compute_bonds
 from pardem.physics.viscous_damping import damp_elements
 from pardem.physics.verlet import kick, kick_drift, kinetic_energy
@@ -44,8 +49,15 @@ class FaultInjection:
 
     @classmethod
     def from_environment(cls):
-        spec = os.environ.get("PARDEM_FAULT")
-        return cls(*spec.split(":")) if spec else None
+        """The injection asked by ``PARDEM_FAULT`` (None when unset or empty); ``DeckError`` (one
+        line naming the variable and its form) when malformed: drivers call this before any output."""
+        spec = os.environ.get("PARDEM_FAULT", "").strip()
+        if not spec:
+            return None
+        parts = spec.split(":")
+        if len(parts) != 2 or not all(p.strip().isdigit() and p.strip().isascii() for p in parts):
+            raise DeckError(f"PARDEM_FAULT = {spec!r}: expected RANK:STEP, two integers >= 0 (e.g. 1:200)")
+        return cls(*parts)
 
     def __call__(self, sim):
         if sim.comm.rank == self.rank and sim.step_count == self.step:
@@ -191,27 +203,77 @@ class Simulation:
 
     @property
     def unstable(self):
-        """This rank saw a NaN or a runaway speed (not yet reduced over ranks)."""
+        """This rank saw a NaN or a runaway speed, or (at the last check) a non-finite field (not
+        yet reduced over ranks)."""
         return self._unstable
 
-    def check_stability(self, force=False):
-        """Collective: raise ``InstabilityError`` on every rank if any rank blew up.
+    def check_stability(self, force=False, stop_requests=False):
+        """Collective: raise ``InstabilityError`` on every rank if any rank blew up: a runaway or
+        NaN speed seen by a kick, or a NaN or infinity in any evolving field (``evolving_fields``,
+        scanned here: about one memory pass, every ``check_every`` steps and before checkpoints).
 
         ``force``: the caller already knows from a collective that some rank did.
+        ``stop_requests``: also raise ``Interrupted`` on every rank if any rank received a stop
+        signal (``pardem.engine.stop``), in the same reduction; ``run`` asks every ``check_every``
+        steps, so that all ranks stop at the same step boundary.
         """
-        if force or self.comm.any(self._unstable):
+        if force:
+            unstable, signum = True, 0
+        else:
+            self._check_finite()   # every evolving field, not only the speeds of the last kick
+            if stop_requests:
+                flags = self.comm.max_array([float(self._unstable), float(stop.requested())])
+                unstable, signum = bool(flags[0]), int(flags[1])
+            else:
+                unstable, signum = self.comm.any(self._unstable), 0
+        if unstable:
             raise InstabilityError(
                 f"at step {self.step_count} (t = {self.time:.6g} s): "
-                "NaN or speed above the limit")
+                "NaN or speed above the limit (or a non-finite position, velocity, force or state)")
+        if signum:
+            raise Interrupted(signum, self.step_count)
+
+    def evolving_fields(self):
+        """(name, array) of every field the steps change on this rank: the owned rows' x, v, w, q,
+        f, t and wall history, the bonds' plastic strain, the contact history, the cell and plates."""
+        e, n = self.elements, self.elements.n_owned
+        fields = [("x", e.x[:n]), ("v", e.v[:n]), ("w", e.w[:n]), ("q", e.q[:n]), ("f", e.f[:n]),
+                  ("t", e.t[:n])]
+        if e.wall_h is not None and e.wall_h.shape[1]:
+            fields.append(("wall_h", e.wall_h[:n]))
+        if self.bonds is not None and self.bonds.n:
+            fields.append(("bond plastic strain", self.bonds.plastic))
+        if self.contacts is not None:
+            fields.append(("contact history", self.contacts.history))
+        if self.cell is not None:
+            fields += [("cell length", self.cell.length), ("cell strain", self.cell.strain)]
+        if self.plates is not None:
+            # Plates hold their positions in an array, API walls their plane offsets
+            pos = self.plates.positions
+            fields.append(("plate positions", pos if isinstance(pos, np.ndarray) else self.plates.offsets))
+        return fields
+
+    def _check_finite(self):
+        """Mark this rank unstable if an evolving field holds a NaN or an infinity (local)."""
+        if not self._unstable:
+            fields = self.evolving_fields()
+            self._unstable = first_nonfinite([a for _, a in fields]) >= 0
 
     def global_stress(self):
         """Love-Weber stress of the contacts over the cell [3, 3] [Pa], tension positive
-        (collective; from the sums of the last force evaluation)."""
-        sums = self.comm.sum(self.contacts.sums[:9]) if self.contacts is not None else np.zeros(9)
+        (collective; from the sums of the last force evaluation; exact, the same bits on any
+        number of ranks, when the contacts are ``reproducible``)."""
+        sums = self.contacts.global_sums(self.comm)[0] if self.contacts is not None else np.zeros(9)
         return np.asarray(sums).reshape(3, 3) / self.cell.volume
 
     def kinetic_energy(self):
+        """Kinetic energy of all elements [J] (collective). Summed exactly, the same bits on any
+        number of ranks, when the contacts are ``reproducible`` (its decisions feed back)."""
         e = self.elements
+        if self.contacts is not None and self.contacts.reproducible:
+            acc = exact_accumulate.zeros(1)
+            ok = exact_accumulate.kinetic_terms(e.v, e.w, e.mass, e.inertia, e.n_owned, acc)
+            return float(exact_sum.total(self.comm, acc, ok)[0])
         return float(self.comm.sum(kinetic_energy(e.v, e.w, e.mass, e.inertia, e.n_owned)))
 
     def run(self, n_steps, operations=()):
@@ -227,10 +289,12 @@ class Simulation:
             after = self.step_count + 1
             # the energies are computed (LAMMPS' eflag) only when an operation may read them
             self.step(with_energy=after == end or any(after % op.every == 0 for op in operations))
+            watchdog.beat()          # this rank's progress, for the watchdog and the signal handler
             if self.step_count % self.check_every == 0 or self.step_count == end:
-                self.check_stability()
+                self.check_stability(stop_requests=True)
             for op in operations:
                 if self.step_count % op.every == 0 and self.step_count != end:
                     op(self)
         for op in operations:
             op(self)
+        watchdog.pause()    # out of the time loop: the caller may do long serial work now

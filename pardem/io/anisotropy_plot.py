@@ -1,12 +1,13 @@
-"""The anisotropy study's figure (``anisotropy.png``). Needs matplotlib (``pip install 'pardem[plot]'``).
+"""The figures of the anisotropy study (``anisotropy.png``) and of the calibration's verification
+(``calibration.png``). Need matplotlib (``pip install 'pardem[plot]'``).
 
-One row per domain kind: E_L^D/E_R^D and E_L^D/E_T^D against the bond ratios (one line per law,
+Anisotropy study: one row per domain kind: E_L^D/E_R^D and E_L^D/E_T^D against the bond ratios (one line per law,
 error bars = standard deviation over the realisations, dotted: domain ratio = bond ratio), and the
 off-axis modulus E(xi) with Hankinson's prediction from E(0) and E(90).
 """
 import numpy as np
 
-LAW_COLOURS = {"TOR": "C0", "hankinson": "C1", "linear": "C2", "spherical": "C3"}
+LAW_COLOURS = {"TOR": "C0", "hankinson": "C1", "linear": "C2", "spherical": "C3", "spherical_normalised": "C4"}
 
 
 def _column(rows, key):
@@ -34,8 +35,8 @@ def plot_study(data, plan, path):
                             ms=3.5, lw=1.2, capsize=2, color=LAW_COLOURS.get(law), label=law)
                 top = max(top, float(np.nanmax(x)))
             ax.plot([0, top], [0, top], color="0.5", ls=":", lw=1.0, label="domain = bond ratio")
-            ax.set_xlabel(f"bond ratio $E_L/E_{name[1]}$")
-            ax.set_ylabel(f"domain ratio $E_L^D/E_{name[1]}^D$")
+            ax.set_xlabel(f"bond ratio $E_L/E_{name[1]}$ [-]")
+            ax.set_ylabel(f"domain ratio $E_L^D/E_{name[1]}^D$ [-]")
             ax.set_title(f"{kind}: $E_L^D/E_{name[1]}^D$")
             ax.grid(True, lw=0.4, alpha=0.5)
             ax.legend(fontsize="small")
@@ -57,4 +58,39 @@ def plot_study(data, plan, path):
                          f"dashed: Hankinson from E(0), E(90); x: failed", fontsize="medium")
             ax.grid(True, lw=0.4, alpha=0.5)
             ax.legend(fontsize="small")
+    fig.savefig(path, dpi=110)
+
+
+def plot_calibration(verification, path):
+    """Write the calibration's verification figure to ``path``: the stress [Pa] of every run against
+    its strain [-] (compressions: mean plate stress against axial strain; shears: sigma_ab against
+    gamma), with the target slope (dashed) and the lattice's predicted slope (dotted).
+    ``verification``: the ``verification`` dict of ``pardem.drivers.calibrate``'s report."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(10.0, 4.2), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, 2, squeeze=False)[0]
+    panels = {"compression": axes[0], "shear": axes[1]}
+    for k, (name, row) in enumerate(verification["quantities"].items()):
+        rec = verification["runs"][name]
+        ax = panels[row["kind"]]
+        c = f"C{k % 10}"
+        x = np.asarray(rec["curve"]["strain"], dtype=float)
+        y = np.asarray(rec["curve"]["stress"], dtype=float)
+        ax.plot(1e3 * x, y / 1e6, color=c, lw=1.4, label=f"{name}: {row['measured'] / 1e6:.4g} MPa")
+        top = float(np.nanmax(x)) if len(x) else 0.0
+        line = np.array([0.0, top])
+        ax.plot(1e3 * line, row["target"] * line / 1e6, color=c, ls="--", lw=0.9)
+        ax.plot(1e3 * line, row["predicted"] * line / 1e6, color=c, ls=":", lw=0.9)
+    for kind, ax in panels.items():
+        ax.set_xlabel(r"axial strain (compression) [$10^{-3}$]" if kind == "compression" else
+                      r"shear strain $\gamma$ [$10^{-3}$]")
+        ax.set_ylabel("mean plate stress [MPa]" if kind == "compression" else r"shear stress $\sigma_{ab}$ [MPa]")
+        ax.set_title(f"{kind}: dashed target, dotted lattice prediction", fontsize="medium")
+        ax.grid(True, lw=0.4, alpha=0.5)
+        if ax.lines:
+            ax.legend(fontsize="small")
+    fig.suptitle(f"calibration check (relations {verification['relations']})", fontsize="medium")
     fig.savefig(path, dpi=110)

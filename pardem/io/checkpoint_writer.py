@@ -9,6 +9,7 @@ import os
 import time
 
 from pardem.config import Field, boolean, choice, number
+from pardem.engine.errors import OutputError
 from pardem.io import checkpoint
 
 # the deck's [checkpoint] section of every driver that checkpoints: the writer's settings
@@ -18,6 +19,8 @@ DECK_SECTION = {
                            "wall seconds between checkpoints; 0 = off"),
     "keep": Field(3, number(lo=1, lo_open=False, integer=True), "how many checkpoints to keep"),
     "at_end": Field(True, boolean, "write a checkpoint when the run ends (also when --steps stops it)"),
+    "at_stop": Field(True, boolean, "write a final checkpoint when a stop signal (SIGTERM, SIGINT, "
+                                    "SIGUSR1) ends the run"),
     "driver": Field("auto", choice("auto", "mpio", "serial"),
                     "HDF5 writing: \"mpio\" (collective MPI-IO), \"serial\" (ranks take turns) or "
                     "\"auto\" (mpio when h5py is built with MPI)"),
@@ -59,14 +62,26 @@ class CheckpointWriter:
             self.write(sim)
 
     def write(self, sim):
-        """Write a checkpoint of the current step now (collective), unless one exists already."""
+        """Write a checkpoint of the current step now (collective), unless one exists already.
+
+        Raises InstabilityError (every rank) for a state holding a NaN or an infinity, OutputError
+        (every rank; the ``.tmp`` removed, the earlier checkpoints kept) for an OS error."""
         if self.written and self.last_step == sim.step_count:
             return
-        sim.check_stability()     # never write (and keep) the state of a run that blew up
+        # never write (and keep) the state of a run that blew up: the collective check of every
+        # evolving field here, and write_checkpoint refuses a NaN or infinity in the payload itself
+        # (InstabilityError on every rank, nothing written)
+        sim.check_stability()
         comm = sim.comm
+        error = None
         if comm.is_root:
-            os.makedirs(self.directory, exist_ok=True)
-        comm.barrier()
+            try:
+                os.makedirs(self.directory, exist_ok=True)
+            except OSError as err:
+                error = f"cannot create the checkpoint directory {self.directory}: {err.strerror or err}"
+        error = comm.bcast(error)
+        if error:
+            raise OutputError(error)
         path = os.path.join(self.directory, checkpoint.checkpoint_name(sim.step_count))
         groups, series, attrs = self.payload()
         checkpoint.write_checkpoint(path, comm, groups, series, attrs, self.mode)

@@ -68,3 +68,26 @@ def read_study_header(directory):
         return None
     with open(path) as fh:
         return json.load(fh)
+
+
+def header_difference(old, new, parts):
+    """The first difference between two study headers over their ``parts`` (e.g. "deck", "plan"):
+    ``(part, key, value in old, value in new)``, or None when they agree (a restart may continue)."""
+    for part in parts:
+        if old.get(part) != new[part]:
+            was = old.get(part) or {}
+            keys = sorted(set(was) | set(new[part]))
+            first = next((k for k in keys if was.get(k) != new[part].get(k)), part)
+            return part, first, was.get(first), new[part].get(first)
+    return None
+
+
+def start_study_folder(directory, header, finished=None):
+    """Rank 0: write the study header into ``directory`` and, on a restart, copy the records of the
+    runs already done (``finished``: {id: record}) into ``records/rank-0.jsonl``, so that the new
+    folder holds every record for a later restart."""
+    write_study_header(directory, header)
+    if finished:
+        log = RecordLog(directory, 0)
+        for rec in finished.values():
+            log.append(rec)

@@ -25,6 +25,11 @@ Contacts: at a rebuild the contact history table (pairs with a non-zero history,
 end gids) travels with the migrating elements like the bonds do, then the contact list is rebuilt
 on the new rows (``pardem.engine.contacts``).
 
+Reproducible runs (``Contacts.reproducible``; issue 16 item 8): the load balance is checked only
+at the rebuilds the displacement criterion asks for (at least ``balance_every`` steps apart), never
+forcing a rebuild of its own, so that lists are rebuilt (and positions wrapped) at the same steps on
+any number of ranks.
+
 Periodic slab axis (a ``PeriodicCell`` periodic along it): the first and last ranks are
 neighbours; positions are wrapped into the cell at each rebuild; an element leaving a slab goes the
 short way round; with two ranks, the single neighbour gets the union of both boundary layers once
@@ -141,6 +146,10 @@ class SlabComm:
         self.rebuilds = 0
         self.rebalances = 0
         self._compute_mark = 0.0
+        self._balance_checked = 0      # step of the last balance check (reproducible runs)
+        # without contacts (bonds only), whether re-cuts wait for a displacement rebuild; with
+        # contacts their ``reproducible`` decides
+        self.reproducible = cell is not None
 
     # -- setup and rebuilds -------------------------------------------------------------------
 
@@ -149,10 +158,12 @@ class SlabComm:
         elements, bonds, _ = self.exchange(elements, bonds)
         return self.borders(elements, bonds)
 
-    def setup_with_pairs(self, elements, bonds, table):
+    def setup_with_pairs(self, elements, bonds, table, wrap=True):
         """``setup`` that also migrates the contact history ``table``; returns (elements, bonds,
-        table) with the table entries touching an owned element."""
-        if self.cell is not None:
+        table) with the table entries touching an owned element. ``wrap``: first wrap the owned
+        rows into the cell (False when the caller just did: a second wrap may move a row that
+        the first rounded onto the cell's upper face, which one process would not do)."""
+        if wrap and self.cell is not None:
             self.cell.wrap(elements)
         elements, bonds, table = self.exchange(elements, bonds, table)
         elements, bonds = self.borders(elements, bonds)
@@ -316,7 +327,8 @@ class SlabComm:
         """
         t0 = time.perf_counter()
         e = elements
-        rebalance = (self.balance_every > 0 and step % self.balance_every == 0
+        reproducible = self.reproducible if contacts is None else contacts.reproducible
+        rebalance = (not reproducible and self.balance_every > 0 and step % self.balance_every == 0
                      and self._unbalanced(e.n_owned, seconds_computing))
         moved = np.inf if unstable else max_displacement2(e.x, self.x_build, e.n_owned)
         # a broken bond (on any rank) frees a pair for the contact list: rebuild it now
@@ -325,6 +337,13 @@ class SlabComm:
             self.seconds_communicating += time.perf_counter() - t0
             return SlabUpdate(elements, bonds, rebuilt=False, unstable=True)
         used = contacts.budget_used(moved) if contacts is not None else moved > (0.5 * self.skin) ** 2
+        if (reproducible and (used or freed) and self.balance_every > 0
+                and step - self._balance_checked >= self.balance_every):
+            # reproducible runs re-cut only at the rebuilds one process would make too: a rebuild
+            # wraps positions into the cell and restarts the skin budget, so an extra one would
+            # change the trajectory's bits
+            self._balance_checked = step
+            rebalance = self._unbalanced(e.n_owned, seconds_computing)
         rebuilt = bool(rebalance or used or freed)
         if rebuilt:
             if self.cell is not None:
@@ -335,7 +354,8 @@ class SlabComm:
                 if contacts is None:
                     elements, bonds = self.setup(e, bonds)
                 else:
-                    elements, bonds, table = self.setup_with_pairs(e, bonds, contacts.table())
+                    elements, bonds, table = self.setup_with_pairs(e, bonds, contacts.table(),
+                                                                   wrap=False)
                     contacts.rebuild(elements, bonds, table)
             except BondOutOfReach as err:
                 # during a run a bond stretched by a quarter of its length means the motion blew up

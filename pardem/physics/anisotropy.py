@@ -4,6 +4,13 @@ Orthotropy frame L, R, T (rows of ``frame``). For a unit bond direction ``u``:
 ``cL, cR, cT = |u.L|, |u.R|, |u.T|``, ``theta = arccos(cL)`` (from L), ``phi = atan2(cT, cR)``
 (in the RT plane, from R). Each law maps ``(values_L, values_R, values_T)`` to the bond's value and
 returns exactly the axis value along each axis. The laws apply to moduli, bond radii and strengths.
+
+A scalar value is the triple ``(v, v, v)``: it goes through the law like any triple, so a scalar and an
+equal triple give the same bonds under every law (bitwise). The interpolating laws (``INTERPOLATING``:
+TOR, hankinson, linear, spherical_normalised) return ``v`` for an equal triple; they return it exactly
+(their formulas would differ from ``v`` by rounding). W's ``spherical`` law, a sum of direction cosines,
+is not an interpolation: an equal triple gives ``v (cL + cR + cT)`` (up to ``sqrt(3) v``), for a scalar
+too; ``spherical_normalised`` divides it by ``cL + cR + cT`` (a weighted mean of the axis values).
 """
 import numpy as np
 
@@ -40,24 +47,33 @@ def law_spherical(c, theta, phi, vL, vR, vT):
             + np.sin(theta) * np.sin(phi) * vT)
 
 
+def law_spherical_normalised(c, theta, phi, vL, vR, vT):
+    """W's spherical law divided by the sum of its weights: (cL vL + cR vR + cT vT) / (cL + cR + cT)."""
+    return (c[:, 0] * vL + c[:, 1] * vR + c[:, 2] * vT) / c.sum(axis=1)
+
+
 LAWS = {
     "TOR": law_tor,
     "hankinson": law_hankinson,
     "linear": law_linear,
     "spherical": law_spherical,
+    "spherical_normalised": law_spherical_normalised,
 }
+# laws that return v in every direction for the triple (v, v, v) (module docstring)
+INTERPOLATING = frozenset(("TOR", "hankinson", "linear", "spherical_normalised"))
 
 
 def evaluate(law, u, frame, values):
-    """Value of an anisotropic property for bond directions ``u`` [n, 3].
+    """Value of an anisotropic property for bond directions ``u`` [n, 3] by ``law`` (a key of LAWS).
 
-    values : scalar (isotropic: the same value in every direction, whatever the law; the spherical
-        law, which is not an interpolation, would otherwise scale it by up to sqrt(3)) or
-        (v_L, v_R, v_T).
+    values : (v_L, v_R, v_T), or a scalar v = (v, v, v): the same bonds under every law (module
+        docstring: the spherical law scales it by cL + cR + cT).
     """
-    if np.ndim(values) == 0:
-        return np.full(len(u), float(values))
     vals = np.broadcast_to(np.asarray(values, dtype=np.float64), (3,))
+    if law not in LAWS:
+        raise ValueError(f"anisotropy law {law!r}: expected one of {', '.join(LAWS)}")
+    if law in INTERPOLATING and vals[0] == vals[1] == vals[2]:
+        return np.full(len(u), float(vals[0]))
     c, theta, phi = direction_angles(u, frame)
     return LAWS[law](c, theta, phi, vals[0], vals[1], vals[2])
 

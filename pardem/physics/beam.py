@@ -42,6 +42,16 @@ def _angle_over_sine(s2, c):
     return np.arctan2(s, c) / s
 
 
+@njit(cache=True, inline="always")
+def _bending_rotation(n0, n1, n2, a0, a1, a2):
+    """Rotation vector taking the unit chord n to the unit end axis a (angle about n x a)."""
+    c0 = n1 * a2 - n2 * a1
+    c1 = n2 * a0 - n0 * a2
+    c2 = n0 * a1 - n1 * a0
+    k = _angle_over_sine(c0 * c0 + c1 * c1 + c2 * c2, n0 * a0 + n1 * a1 + n2 * a2)
+    return c0 * k, c1 * k, c2 * k
+
+
 @njit(cache=True, inline="always", error_model="numpy")
 def _carry_twist_ref(ax, ay, az, nx, ny, nz, rx, ry, rz):
     """Apply the smallest rotation taking unit ``a`` to unit ``n`` to ``r``, for ``r`` normal to ``a``.
@@ -122,20 +132,8 @@ def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1
     r22 = R2[2, 0] * p2[b, 0] + R2[2, 1] * p2[b, 1] + R2[2, 2] * p2[b, 2]
 
     # bending rotations th_k = rotation vector taking n to a_k
-    c10 = n1 * a12 - n2 * a11
-    c11 = n2 * a10 - n0 * a12
-    c12 = n0 * a11 - n1 * a10
-    k1 = _angle_over_sine(c10 * c10 + c11 * c11 + c12 * c12, n0 * a10 + n1 * a11 + n2 * a12)
-    t10 = c10 * k1
-    t11 = c11 * k1
-    t12 = c12 * k1
-    c20 = n1 * a22 - n2 * a21
-    c21 = n2 * a20 - n0 * a22
-    c22 = n0 * a21 - n1 * a20
-    k2 = _angle_over_sine(c20 * c20 + c21 * c21 + c22 * c22, n0 * a20 + n1 * a21 + n2 * a22)
-    t20 = c20 * k2
-    t21 = c21 * k2
-    t22 = c22 * k2
+    t10, t11, t12 = _bending_rotation(n0, n1, n2, a10, a11, a12)
+    t20, t21, t22 = _bending_rotation(n0, n1, n2, a20, a21, a22)
 
     # twist: both references carried onto the chord, then the signed angle between them about n
     s10, s11, s12 = _carry_twist_ref(a10, a11, a12, n0, n1, n2, r10, r11, r12)

@@ -192,6 +192,20 @@ def _scan_run(b0, b1, a, i, gi, ri, xi0, xi1, xi2, t0i, t1i, t2i, xs, rs, gs, im
     return count
 
 
+
+@njit(cache=True, inline="always")
+def _neighbour_cell(e, n, periodic):
+    """Cell index ``e`` along an axis of ``n`` cells, brought back into range on a periodic axis:
+    ``(cell, image)`` with image -1, 0 or +1 (the copy of that cell next to the current one), or
+    ``(-1, 0)`` past the end of a non-periodic axis."""
+    if 0 <= e < n:
+        return e, 0
+    if not periodic:
+        return -1, 0
+    s = -1 if e < 0 else 1
+    return e - s * n, s
+
+
 @njit(cache=True, error_model="numpy")
 def _scan_pairs(xs, rs, gs, ims, n_owned, skin, period, periodic, nc, cell_start, cell_rows,
                 pairs, shifts):
@@ -222,21 +236,13 @@ def _scan_pairs(xs, rs, gs, ims, n_owned, skin, period, periodic, nc, cell_start
                     ri = rs[a]
                     xi0, xi1, xi2 = xs[a, 0], xs[a, 1], xs[a, 2]
                     for o0 in range(-1, 2):
-                        e0 = c0 + o0
-                        s0 = 0
-                        if e0 < 0 or e0 >= n0:
-                            if not p0:
-                                continue
-                            s0 = -1 if e0 < 0 else 1   # the image of that cell next to c
-                            e0 -= s0 * n0
+                        e0, s0 = _neighbour_cell(c0 + o0, n0, p0)
+                        if e0 < 0:
+                            continue
                         for o1 in range(-1, 2):
-                            e1 = c1 + o1
-                            s1 = 0
-                            if e1 < 0 or e1 >= n1:
-                                if not p1:
-                                    continue
-                                s1 = -1 if e1 < 0 else 1
-                                e1 -= s1 * n1
+                            e1, s1 = _neighbour_cell(c1 + o1, n1, p1)
+                            if e1 < 0:
+                                continue
                             t0i = s0 + ims[a, 0]
                             t1i = s1 + ims[a, 1]
                             row = (e0 * n1 + e1) * n2
@@ -247,13 +253,9 @@ def _scan_pairs(xs, rs, gs, ims, n_owned, skin, period, periodic, nc, cell_start
                                                   L0, L1, L2, pairs, shifts, count)
                                 continue
                             for o2 in range(-1, 2):
-                                e2 = c2 + o2
-                                s2 = 0
-                                if e2 < 0 or e2 >= n2:
-                                    if not p2:
-                                        continue
-                                    s2 = -1 if e2 < 0 else 1
-                                    e2 -= s2 * n2
+                                e2, s2 = _neighbour_cell(c2 + o2, n2, p2)
+                                if e2 < 0:
+                                    continue
                                 e = row + e2
                                 count = _scan_run(cell_start[e], cell_start[e + 1],
                                                   a, i, gi, ri, xi0, xi1, xi2, t0i, t1i,

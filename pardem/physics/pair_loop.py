@@ -45,6 +45,9 @@ from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, add_love_weber, aff
                                           check_pairs, clear_history, contact_geometry,
                                           pair_separation, relative_motion, scatter_pair,
                                           write_pair)
+from pardem.physics.exact_accumulate import NLIMB
+from pardem.physics.exact_accumulate import add as exact_add
+from pardem.physics.exact_accumulate import normalize as exact_normalize
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -76,24 +79,33 @@ def _pair(forces, engaged, deforming):
 
 
 @lru_cache(maxsize=None)
-def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True):
+def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exact=False):
     """The compiled neighbour-list kernel of one law function and loop choice (built once).
 
-    ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, c, n_owned, acc)`` adds
-    the pair forces and torques to ``f``, ``t`` [n_total, 3] (owned and ghost rows alike), updates
-    ``history`` [n_pairs, width], adds the Love-Weber sums of the pairs whose ``i`` is owned to
-    ``acc`` [10] (``contact_frame.add_love_weber``) and returns their elastic energy [J] (0 unless
-    ``with_energy``: its arithmetic is then left out, 8 % of the loop). ``shift`` [n_pairs, 3] [m]
-    and the cell's diagonal strain rate ``rate`` [3] [1/s] are read only when ``periodic`` and
-    ``deforming``; ``c`` is the law's constants tuple.
+    ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, c, n_owned, acc, xacc)``
+    adds the pair forces and torques to ``f``, ``t`` [n_total, 3] (owned and ghost rows alike),
+    updates ``history`` [n_pairs, width], adds the Love-Weber sums of the pairs whose ``i`` is
+    owned to ``acc`` [10] (``contact_frame.add_love_weber``) and returns their elastic energy [J]
+    (0 unless ``with_energy``: its arithmetic is then left out, 8 % of the loop). ``shift``
+    [n_pairs, 3] [m] and the cell's diagonal strain rate ``rate`` [3] [1/s] are read only when
+    ``periodic`` and ``deforming``; ``c`` is the law's constants tuple.
+
+    ``exact`` (reproducible runs): the nine Love-Weber sums and the energy are instead added
+    exactly, term by term, into ``xacc`` [10, NLIMB] int64 (``physics.exact_accumulate``, rows
+    0-8 and 9, normalized at the end), so that their global sums do not depend on the number of
+    ranks; ``acc`` then gets the contact count only, and the loop returns 0, or NaN when a term
+    was not finite.
     """
     pair = _pair(forces, engaged, bool(deforming))
-    return _jit(_list_loop(bool(periodic), bool(deforming), bool(with_energy)), pair,
+    return _jit(_list_loop(bool(periodic), bool(deforming), bool(with_energy), bool(exact)), pair,
                 _name(forces, engaged))
 
 
-def _list_loop(periodic, deforming, with_energy):
-    def loop(pi, pj, shift, rate, x, v, w, radius, mass, f, t, hist, dt, c, n_owned, acc):
+NO_XACC = np.zeros((10, NLIMB), dtype=np.int64)   # the exact accumulator of loops without ``exact``
+
+
+def _list_loop(periodic, deforming, with_energy, exact):
+    def loop(pi, pj, shift, rate, x, v, w, radius, mass, f, t, hist, dt, c, n_owned, acc, xacc):
         out = np.empty(9)
         energy = 0.0
         s0 = s1 = s2 = 0.0
@@ -102,6 +114,7 @@ def _list_loop(periodic, deforming, with_energy):
         # the compiler cannot prove it does not alias f and t)
         a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
         count = 0
+        ok = True
         if deforming:
             g0, g1, g2 = rate[0], rate[1], rate[2]
         for p in range(pi.shape[0]):
@@ -115,11 +128,25 @@ def _list_loop(periodic, deforming, with_energy):
             if acts:
                 scatter_pair(i, j, f, t, out)
                 if i < n_owned:   # counted once over the ranks (the owner of the lower gid)
-                    if with_energy:
-                        energy += e
                     b0 = (x[j, 0] - x[i, 0]) + s0
                     b1 = (x[j, 1] - x[i, 1]) + s1
                     b2 = (x[j, 2] - x[i, 2]) + s2
+                    count += 1
+                    if exact:
+                        ok &= exact_add(xacc, 0, b0 * out[0])  # noqa: F821
+                        ok &= exact_add(xacc, 1, b0 * out[1])  # noqa: F821
+                        ok &= exact_add(xacc, 2, b0 * out[2])  # noqa: F821
+                        ok &= exact_add(xacc, 3, b1 * out[0])  # noqa: F821
+                        ok &= exact_add(xacc, 4, b1 * out[1])  # noqa: F821
+                        ok &= exact_add(xacc, 5, b1 * out[2])  # noqa: F821
+                        ok &= exact_add(xacc, 6, b2 * out[0])  # noqa: F821
+                        ok &= exact_add(xacc, 7, b2 * out[1])  # noqa: F821
+                        ok &= exact_add(xacc, 8, b2 * out[2])  # noqa: F821
+                        if with_energy:
+                            ok &= exact_add(xacc, 9, e)  # noqa: F821
+                        continue
+                    if with_energy:
+                        energy += e
                     a00 += b0 * out[0]
                     a01 += b0 * out[1]
                     a02 += b0 * out[2]
@@ -129,8 +156,10 @@ def _list_loop(periodic, deforming, with_energy):
                     a20 += b2 * out[0]
                     a21 += b2 * out[1]
                     a22 += b2 * out[2]
-                    count += 1
         add_love_weber(acc, a00, a01, a02, a10, a11, a12, a20, a21, a22, count)
+        if exact:
+            exact_normalize(xacc)  # noqa: F821
+            return energy if ok else np.nan
         return energy
     return loop
 
@@ -211,7 +240,7 @@ def law_interface(pair_function, constants, history_width):
     ``history_width(params) -> int`` (see the module docstring)."""
 
     def compute(params, elements, i, j, history, dt, shift=None, rate=None, acc=None,
-                with_energy=True):
+                with_energy=True, xacc=None):
         """Add the contact forces of the pairs ``(i[p], j[p])`` to ``elements.f``/``elements.t``.
 
         i, j : [n_pairs] rows (ordered by gid within each pair); history : [n_pairs, width]
@@ -220,16 +249,23 @@ def law_interface(pair_function, constants, history_width):
         periodic image shift added to ``x_j`` [m]; rate : optional diagonal strain rate [3] [1/s]
         of the periodic cell (needs ``shift``); acc : optional [10] Love-Weber sums, added to.
         Returns the elastic energy [J] of the pairs whose ``i`` is owned (NaN when not
-        ``with_energy``: the loop then does not compute it).
+        ``with_energy``: the loop then does not compute it). xacc : optional [10, NLIMB] int64
+        exact accumulator (reproducible runs, ``pair_loop``'s ``exact``): the Love-Weber sums and
+        the energy go there, exactly (added to), ``acc`` gets the contact count only, and the
+        return value is 0 (NaN on a non-finite term).
         """
         e = elements
         check_pairs(i, j, history, shift, history_width(params))
         forces, engaged = pair_function(params)
         loop = pair_loop(forces, engaged, shift is not None,
-                         rate is not None and bool(np.any(rate != 0.0)), bool(with_energy))
+                         rate is not None and bool(np.any(rate != 0.0)), bool(with_energy),
+                         xacc is not None)
         energy = loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
                       e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history, float(dt),
-                      constants(params, dt), e.n_owned, np.zeros(10) if acc is None else acc)
+                      constants(params, dt), e.n_owned, np.zeros(10) if acc is None else acc,
+                      NO_XACC if xacc is None else xacc)
+        if xacc is not None:
+            return energy
         return energy if with_energy else float("nan")
 
     def compute_all_pairs(params, elements, history_full, dt):

@@ -46,6 +46,18 @@ def eigen_bound(bi, bj, L0, ka, kb, kt, mass, inertia, n_owned, plate_k_per_mass
     return worst
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def touching_stiffness(i, j, s0, s1, s2, x, radius, k_constant, k_hertz):
+    """``(k, |d|^2)`` of pair (i, j) with image shift (s0, s1, s2) [m]: its normal stiffness
+    ``k_constant + k_hertz sqrt(R* delta)`` [N/m] and squared centre distance [m^2]; ``k = -1``
+    when the spheres do not touch."""
+    _, _, _, dist2, ri, rj, rsum = pair_separation(i, j, s0, s1, s2, x, radius)
+    if dist2 >= rsum * rsum:
+        return -1.0, dist2
+    delta = overlap(dist2, rsum)[1]
+    return k_constant + k_hertz * np.sqrt(ri * rj / rsum * delta), dist2
+
+
 @njit(cache=True, error_model="numpy")
 def contact_stiffness(pi, pj, shift, periodic, x, radius, mass, n_owned, k_constant, k_hertz):
     """Stiffness measures of the normal springs of the pairs ``(pi[p], pj[p])`` in contact
@@ -71,11 +83,9 @@ def contact_stiffness(pi, pj, shift, periodic, x, radius, mass, n_owned, k_const
         j = pj[p]
         if periodic:
             s0, s1, s2 = shift[p, 0], shift[p, 1], shift[p, 2]
-        _, _, _, dist2, ri, rj, rsum = pair_separation(i, j, s0, s1, s2, x, radius)
-        if dist2 >= rsum * rsum:
+        k, dist2 = touching_stiffness(i, j, s0, s1, s2, x, radius, k_constant, k_hertz)
+        if k < 0.0:
             continue
-        delta = overlap(dist2, rsum)[1]
-        k = k_constant + k_hertz * np.sqrt(ri * rj / rsum * delta)
         cross = k / np.sqrt(mass[i] * mass[j])
         lam[i] += k / mass[i] + cross
         lam[j] += k / mass[j] + cross

@@ -45,10 +45,11 @@ being deterministic, are the same for any number of ranks.
 
 Runtime: see ``pardem.drivers.anisotropy``.
 """
+import contextlib
 import copy
 import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -58,7 +59,8 @@ from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.domains.compact import compact_packing
 from pardem.engine.errors import InstabilityError
 
-LAWS = ("TOR", "hankinson", "linear", "spherical")
+LAWS = ("TOR", "hankinson", "linear", "spherical")      # W's four laws: the study's default
+ALL_LAWS = LAWS + ("spherical_normalised",)             # --laws may also pick the normalised variant
 KINDS = ("ordered", "compact")
 AXES = ("x", "y", "z")          # L, R, T when the frame is not tilted
 DEFAULT_RATIOS = (1.0, 5.0, 10.0, 15.0, 20.0, 25.0)
@@ -98,7 +100,8 @@ class StudyPlan:
 
     ratios : bond ratios E_L/E_R [-]; E_R, E_T [Pa] fixed; realisations : compact realisations;
     xi_step : off-axis step [deg] (0 = no off-axis sweep); offaxis_ratio : E_L/E_R of the sweep;
-    transits : loading time in axial wave transits; base_seed : seed of realisation 0.
+    transits : loading time in axial wave transits; base_seed : seed of realisation 0;
+    steps : at most this many steps per case (None: the loading of ``transits``).
     """
     kinds: tuple
     laws: tuple
@@ -110,6 +113,7 @@ class StudyPlan:
     offaxis_ratio: float = 25.0
     transits: float = DEFAULT_TRANSITS
     base_seed: int = 0
+    steps: int = None
 
     def xis(self):
         if not self.xi_step:
@@ -255,7 +259,14 @@ def realisation_packing(deck, plan, case):
                         f"{dom['seed']}, loading axis {case.axis}: {err}") from None
 
 
-def run_case(comm, deck, plan, case, packing=None):
+def case_name(case):
+    """File-name stem of a case (its series and ParaView folder), e.g.
+    ``compact-r3-hankinson-q25-x-xi30``."""
+    return (f"{case.kind}-r{case.realisation}-{case.law}-q{case.ratio:g}-{case.axis}-xi{case.tilt_deg:g}"
+            .replace("/", "_"))
+
+
+def run_case(comm, deck, plan, case, packing=None, outputs=None):
     """Compress ``case`` on the single-rank communicator ``comm``; a JSON-ready record.
 
     The plate speed makes the loading last ``plan.transits`` axial wave transits; a dynamic result
@@ -264,6 +275,9 @@ def run_case(comm, deck, plan, case, packing=None):
     ``status``, the diagnostics of ``assess``, ``attempts``, ``steps``, ``n_elements``, ``n_bonds``,
     ``plate_speed`` [m/s], ``transits`` (of the last attempt), ``seconds`` (wall).
     ``packing``: the realisation's compact packing (``realisation_packing``), so it is built once.
+    ``outputs(case, name, sim)``: a context manager giving (sinks, operations) of the attempt (series
+    sinks fed every sample, writers run with the sampler; e.g. the driver's series files and ParaView
+    writer); a retry rewrites them.
     """
     t0 = time.perf_counter()
     rec = asdict(case)
@@ -274,10 +288,16 @@ def run_case(comm, deck, plan, case, packing=None):
             probe = build_case(comm, case_deck(deck, plan, case), packing=packing)   # length, transit time
             speed = probe.deck["loading"]["strain"] * probe.constants.length / (transits * probe.constants.transit_time)
             run = with_plate_speed(probe, speed)
+            if plan.steps is not None:
+                run = replace(run, n_steps=min(run.n_steps, int(plan.steps)))
             every = run.deck["output"]["series_every"] or max(1, run.n_steps // 200)
-            sampler = SeriesSampler(run, every)
-            sampler(run.sim)
-            run.sim.run(run.n_steps, operations=[sampler])
+            with (outputs(case, case_name(case), run.sim) if outputs else contextlib.nullcontext(((), ()))) as (
+                    sinks, ops):
+                sampler = SeriesSampler(run, every, sinks)
+                sampler(run.sim)
+                for op in ops:
+                    op(run.sim)      # the initial state
+                run.sim.run(run.n_steps, operations=[sampler, *ops])
             result = measure(run)
             status, diag = assess(run, result)
             rec.update(E=result["young_modulus"], E_secant=result["young_modulus_secant"], status=status,
@@ -300,13 +320,14 @@ def case_id(rec):
             float(rec["tilt_deg"]))
 
 
-def run_study(comm, case_comm, deck, plan, progress=None, packings=None, finished=None, on_record=None):
+def run_study(comm, case_comm, deck, plan, progress=None, packings=None, finished=None, on_record=None,
+              outputs=None):
     """Run the plan over the ranks of ``comm`` (each case on ``case_comm``); every record on rank 0
     (sorted by case), None elsewhere. ``progress(done, total, record)`` is called on rank 0 for its
     own cases; ``packings`` maps (kind, realisation, axis) to packings this rank built already.
     ``finished`` maps ``case_id`` to the records of a previous run of the same plan (a restart):
     those cases are not run again. ``on_record(record)`` is called on the running rank after each
-    case it runs (e.g. to append it to this rank's record file)."""
+    case it runs (e.g. to append it to this rank's record file). ``outputs``: see ``run_case``."""
     finished = finished or {}
     groups = plan_cases(plan)
     mine = assign(groups, comm.size, plan)[comm.rank]
@@ -329,7 +350,7 @@ def run_study(comm, case_comm, deck, plan, progress=None, packings=None, finishe
                 rec = dict(asdict(case), seed=plan.base_seed + case.realisation, E=math.nan, E_secant=math.nan,
                            status="bad_input", message=str(packings[key]), seconds=0.0)
             else:
-                rec = run_case(case_comm, deck, plan, case, packings[key])
+                rec = run_case(case_comm, deck, plan, case, packings[key], outputs=outputs)
             rec["rank"] = comm.rank
             records.append(rec)
             if on_record is not None:
@@ -347,7 +368,7 @@ def run_study(comm, case_comm, deck, plan, progress=None, packings=None, finishe
 
 
 def _case_key(rec):
-    return (KINDS.index(rec["kind"]) if rec["kind"] in KINDS else 99, rec["kind"], LAWS.index(rec["law"]),
+    return (KINDS.index(rec["kind"]) if rec["kind"] in KINDS else 99, rec["kind"], ALL_LAWS.index(rec["law"]),
             rec["ratio"], rec["tilt_deg"], rec["axis"], rec["realisation"])
 
 

@@ -4,34 +4,50 @@ Pure arithmetic (no MPI, no files): target moduli, density and strengths of the 
 continuum in, bond parameters of the ordered cubic lattice out. Per direction k in (L, R, T), with
 ``E_k^D`` the target Young's modulus along k and ``G^D`` the target shear modulus [Pa]::
 
-    r_k^2  = (4/3) G^D / E_k^D                 (adimensional bond radius, r = r_k * element radius)
-    E_k^mu = (4/pi) E_k^D / r_k^2              (bond Young's modulus)
+    E_k^mu r_k^2 = (4/pi) E_k^D                (axial: exact for the lattice)
+    E_k^mu r_k^4 = c_G G^D                     (shear)
+    =>  r_k^2 = (pi/4) c_G G^D / E_k^D,   E_k^mu = (4/pi) E_k^D / r_k^2
     sigma_k^mu = 4 / (pi r_k^2) * sigma_k^D    (every stress threshold: tension, shear, densification)
     rho_e = (6/pi) rho_D                       (element density, ordered lattice of touching spheres)
 
-The first two lines solve ``E_k^mu r_k^2 = (4/pi) E_k^D`` and ``E_k^mu r_k^4 = 16/(3 pi) G^D``.
+Two shear relations (``RELATIONS``, chosen by the deck's ``bonds.relations``):
 
-Shear, section 6 against beam theory: section 6 implies ``G^D = (3 pi / 16) E^mu r^4``. The
-Euler-Bernoulli beams of the face-bonded cubic lattice give half of it: in a uniform shear of the
-plane (a, b) (engineering strain gamma), a bond along b of spacing ``l = 2R`` carries the shear force
-``12 beta_a beta_b / (beta_a + beta_b) gamma / l^2`` (``beta = E I``, the element rotation balancing
-the bending moments of the bonds along a and along b), one bond per area ``l^2``, so::
+* ``"section6"``: W's relation, ``c_G = 16/(3 pi)``. It holds both elements of a bond without
+  rotation, and it reproduces W's published bond set; the face-bonded lattice built with it has
+  half the target shear modulus.
+* ``"exact"``: the face-bonded lattice's own relation, ``c_G = 32/(3 pi)``. In a uniform shear of
+  the plane (a, b) (engineering strain gamma) the elements rotate freely; minimising the bending
+  energy of the bonds along a and along b over that rotation gives (``beta = E I``, spacing
+  ``l = 2R``, one bond of each direction per ``l^3``)::
 
-    G_ab = (3 pi / 32) * 2 x y / (x + y),   x = E_a^mu r_a^4,  y = E_b^mu r_b^4
+      G_ab = (3 pi / 32) * 2 x y / (x + y),   x = E_a^mu r_a^4,  y = E_b^mu r_b^4
 
-(``lattice_shear_modulus``). The calibration keeps section 6 as written (it is the reference); the
-verification measures G and reports both predictions next to the measurement.
+  (``lattice_shear_modulus``), so ``E_k^mu r_k^4 = 32/(3 pi) G^D`` in every direction makes
+  ``G_ab = G^D`` in all three planes.
 
-References: docs/physics.md sections 1, 2, 6 (W 4.5, 4.14).
+The lattice has Poisson ratio 0 whatever the relations (``LATTICE_POISSON``): face bonds along the
+load carry it alone and nothing couples it to the lateral directions (docs/physics.md section 4).
+
+References: docs/physics.md sections 1, 2, 4, 6 (W 4.5, 4.14).
 """
 import math
 from dataclasses import asdict, dataclass
 
-from pardem.config import DeckError, Field, boolean, choice, number, positive, same_or, strength, triple
+from pardem.physics.anisotropy import LAWS as ANISOTROPY_LAWS
+from pardem.config import DeckError, Field, Schema, boolean, choice, number, positive, same_or, strength, triple
+from pardem.protocols import deck_checks
 
 DIRECTIONS = "LRT"
 R_MAX = 2.0            # largest adimensional bond radius accepted (W's calibrated set has 1.14)
 SHEAR_PLANES = {"LR": (0, 1), "LT": (0, 2), "RT": (1, 2)}   # (shear direction a, gradient axis b)
+AXES = {"L": "x", "R": "y", "T": "z"}      # the verification lattice is untilted
+# E^mu r^4 = SHEAR_FACTOR[relations] G^D (module docstring)
+SHEAR_FACTOR = {"exact": 32.0 / (3.0 * math.pi), "section6": 16.0 / (3.0 * math.pi)}
+RELATIONS = tuple(SHEAR_FACTOR)
+LATTICE_POISSON = 0.0
+POISSON_NOTE = ("Poisson ratio 0: the face-bonded ordered lattice loaded along a lattice axis has no lateral "
+                "strain (face bonds along the load carry it alone); compact (random) domains, and lattices "
+                "loaded off their axes, have a non-zero one (docs/physics.md section 4)")
 
 
 # The targets deck of ``python -m pardem.drivers.calibrate`` (see drivers/calibrate_beech.toml).
@@ -42,7 +58,8 @@ CALIBRATE_SCHEMA = {
                          "E_R^D along R [Pa]; \"same\" = E_T^D (then E_R^mu = E_T^mu, r_R = r_T)"),
         "young_T": Field(7.89e8, positive(), "E_T^D, domain Young's modulus along T [Pa]"),
         "shear": Field(7.7e8, positive(),
-                       f"G^D, domain shear modulus [Pa]; r_k = sqrt(4/3 G^D / E_k^D) must be <= {R_MAX:g}"),
+                       f"G^D, domain shear modulus [Pa]; r_k = sqrt(c G^D / E_k^D) must be <= {R_MAX:g} "
+                       f"(c = 8/3 exact, 4/3 section6)"),
         "density": Field(720.0, positive(), "rho_D, density of the represented continuum [kg/m^3]"),
         "tensile_strength": Field(0.0, strength(),
                                   "sigma_max^D, tensile strength [Pa] (scalar or [L, R, T]); 0 = unbreakable"),
@@ -58,22 +75,36 @@ CALIBRATE_SCHEMA = {
         "radius": Field(0.2381e-3, positive(), "element radius [m]"),
     },
     "bonds": {
-        "law": Field("TOR", choice("TOR", "hankinson", "linear", "spherical"),
+        "relations": Field("exact", choice(*RELATIONS),
+                           "shear relation of the calibration: exact (the face-bonded lattice's: its G equals "
+                           "G^D) or section6 (W's, rotation-blocked bonds: reproduces W's bond set, the "
+                           "lattice's G is G^D/2)"),
+        "law": Field("TOR", choice(*ANISOTROPY_LAWS),
                      "anisotropy law of the calibrated deck (TOR: the ordered lattice's bonds lie along L, R, T)"),
         "poisson": Field(0.3, number(-1.0, 0.5), "bond Poisson ratio (torsion only)"),
         "damping": Field(0.2, number(0.0, 1.0, lo_open=False, hi_open=False), "bond damping ratio"),
     },
     "verify": {
-        "strain": Field(0.002, number(0.0, 0.05), "--verify: nominal compression strain along L and T"),
-        "shear_strain": Field(0.002, number(0.0, 0.05), "--verify: engineering shear strain of the shear test"),
-        "shear_plane": Field("LT", choice(*SHEAR_PLANES), "--verify: plane of the shear test"),
+        "strain": Field(0.002, number(0.0, 0.05), "--verify: nominal compression strain along L, R and T"),
+        "shear_strain": Field(0.002, number(0.0, 0.05), "--verify: engineering shear strain of the shear tests"),
+        "shear_plane": Field("all", choice("all", *SHEAR_PLANES),
+                             "--verify: plane of the shear test, or all (LR, LT and RT)"),
         "transits": Field(8.0, number(1.0, 1000.0, lo_open=False, hi_open=False),
                           "--verify: loading time in wave transits across the domain"),
         "quick_elements": Field(8, number(lo=4, lo_open=False, hi=40, hi_open=False, integer=True),
                                 "--quick: elements per edge of the verification cube"),
-        "shear": Field(True, boolean, "--verify: run the shear test too"),
+        "shear": Field(True, boolean, "--verify: run the shear tests too"),
+        "tolerance": Field(0.02, number(0.0, 1.0),
+                           "--verify: largest |measured / target - 1| of a modulus that passes"),
+    },
+    "output": {
+        "series_every": Field(0, number(lo=0, lo_open=False, integer=True),
+                              "--verify: steps between series samples of a run; 0 = about 200 per run"),
+        "vtk_every": Field(0, number(lo=0, lo_open=False, integer=True),
+                           "--verify: steps between ParaView snapshots (DIR/paraview/<run>/pardem.pvd); 0 = none"),
     },
 }
+CALIBRATE_SCHEMA = Schema(CALIBRATE_SCHEMA, checks=deck_checks.CALIBRATE_CHECKS)   # whole-deck checks
 
 
 @dataclass(frozen=True)
@@ -128,7 +159,7 @@ def as_lrt(v):
     return tuple(float(x) for x in v) if isinstance(v, (list, tuple)) else (float(v),) * 3
 
 
-def check_targets(t):
+def check_targets(t, relations="exact"):
     """Raise DeckError naming the first unusable target field and its allowed range."""
     for name in ("young_L", "young_T", "shear", "density"):
         v = getattr(t, name)
@@ -137,12 +168,13 @@ def check_targets(t):
     if t.young_R is not None and not (math.isfinite(t.young_R) and t.young_R > 0):
         raise DeckError(f"targets.young_R = {t.young_R!r}: expected a number in (0, inf) or \"same\"")
     E = t.young()
-    limit = 0.75 * R_MAX**2 * min(E)
+    c = radius_factor(relations)
+    limit = R_MAX**2 * min(E) / c
     if t.shear > limit:
         k = DIRECTIONS[E.index(min(E))]
         raise DeckError(f"targets.shear = {t.shear!r} is out of range: expected a number in (0, {limit:.6g}] "
-                        f"(3/4 r_max^2 E_{k}^D with r_max = {R_MAX:g}: the bond radius ratio "
-                        f"r_{k} = sqrt(4/3 G^D / E_{k}^D) would exceed {R_MAX:g})")
+                        f"(r_max^2 E_{k}^D / {c:.4g} with r_max = {R_MAX:g}, bonds.relations = {relations}: the "
+                        f"bond radius ratio r_{k} = sqrt({c:.4g} G^D / E_{k}^D) would exceed {R_MAX:g})")
     for name in ("tensile_strength", "shear_strength"):
         vals = getattr(t, name)
         if len(vals) != 3 or any(not (math.isfinite(x) and x >= 0) for x in vals) or (
@@ -154,14 +186,22 @@ def check_targets(t):
         raise DeckError(f"targets.densification_p0 = {t.densification_p0!r}: expected a number in (0, inf)")
 
 
-def calibrate(targets):
-    """Bond parameters of the ordered lattice reproducing ``targets`` (docs/physics.md section 6).
+def radius_factor(relations):
+    """``c`` of ``r_k^2 = c G^D / E_k^D``: (pi/4) SHEAR_FACTOR, 8/3 (exact) or 4/3 (section6)."""
+    if relations not in SHEAR_FACTOR:
+        raise ValueError(f"relations {relations!r}: expected one of {', '.join(RELATIONS)}")
+    return math.pi / 4.0 * SHEAR_FACTOR[relations]
+
+
+def calibrate(targets, relations="exact"):
+    """Bond parameters of the ordered lattice reproducing ``targets`` (docs/physics.md section 6) by
+    the shear relation ``relations`` ("exact" or "section6", module docstring).
 
     Returns a ``BondCalibration``; DeckError on unusable targets.
     """
-    check_targets(targets)
+    check_targets(targets, relations)
     E_D = targets.young()
-    r2 = tuple(4.0 / 3.0 * targets.shear / e for e in E_D)
+    r2 = tuple(radius_factor(relations) * targets.shear / e for e in E_D)
     young = tuple(4.0 / math.pi * e / s for e, s in zip(E_D, r2))
     scale = tuple(4.0 / (math.pi * s) for s in r2)            # sigma^mu / sigma^D per direction
     return BondCalibration(
@@ -196,15 +236,20 @@ def lattice_shear_modulus(young, radius_ratio, plane):
     return 3.0 * math.pi / 32.0 * 2.0 * x * y / (x + y)
 
 
-def predictions(cal, plane):
-    """Analytic domain properties of the calibrated lattice: E_L^D, E_R^D, E_T^D [Pa] by section 6
-    (exact for the lattice), and the shear modulus of ``plane`` by beam theory and by section 6 (its
-    relation ``G = (3 pi / 16) E^mu r^4`` applied to the plane's bonds like the beam formula: twice
-    the beam value; for calibrated bonds, ``E^mu r^4`` is the same along L, R, T and this is G^D)."""
+def predictions(cal):
+    """Analytic domain properties [Pa] of the lattice of the bonds ``cal``: ``young_L``, ``young_R``,
+    ``young_T`` (``lattice_young``, exact for the lattice), per plane P in LR, LT, RT
+    ``shear_P`` (the lattice's, ``lattice_shear_modulus``) and ``shear_P_section6`` (what W's
+    rotation-blocked relation ascribes to the same bonds: twice the lattice's), and ``poisson``
+    (the lattice's Poisson ratios, 0)."""
     E = [lattice_young(e, r) for e, r in zip(cal.young, cal.radius_ratio)]
-    G_beam = lattice_shear_modulus(cal.young, cal.radius_ratio, plane)
-    return {"young_L": E[0], "young_R": E[1], "young_T": E[2],
-            "shear_section6": 2.0 * G_beam, "shear_beam": G_beam}
+    out = {"young_L": E[0], "young_R": E[1], "young_T": E[2]}
+    for plane in SHEAR_PLANES:
+        G = lattice_shear_modulus(cal.young, cal.radius_ratio, plane)
+        out[f"shear_{plane}"] = G
+        out[f"shear_{plane}_section6"] = 2.0 * G
+    out["poisson"] = LATTICE_POISSON
+    return out
 
 
 def compress_deck(cal, deck, strengths_known=True):

@@ -10,10 +10,10 @@ import numpy as np
 from pardem.engine.bonding import BeamMaterial, make_bonds
 from pardem.config import DeckError, check_deck, raw_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA, physics_differences, upgrade
+from pardem.engine import snapshot
 from pardem.io import checkpoint
-from pardem.io.checkpoint import BOND_DATASETS, CONTACT_DATASETS, ELEMENT_DATASETS
 from pardem.domains import compact
-from pardem.engine.contacts import Contacts, pair_keys
+from pardem.engine.contacts import Contacts
 from pardem.domains.ordered import ordered_lattice
 from pardem.physics.contact_laws import LAWS as CONTACT_LAWS
 from pardem.physics.contact_laws import critical_time_step as contact_critical_time_step
@@ -355,6 +355,8 @@ def _assemble(comm, deck, elements, bonds, domain, constants, steps, step=0, sam
                              c.plate_stiffness, c.ramp_time, law=law, lateral=c.lateral_walls)
         if steps is None:
             t_end = plates.time_to_travel(ld["strain"] * c.length)
+            if not math.isfinite(t_end / c.dt):
+                raise DeckError("loading.strain, loading.plate_speed, run.dt: the loading never ends")
             steps = max(1, math.ceil(t_end / c.dt - 1e-9))
     sim = Simulation(comm, elements, bonds, plates, c.dt, domain=domain, contacts=contacts)
     sim.step_count = int(step)
@@ -367,31 +369,11 @@ def _assemble(comm, deck, elements, bonds, domain, constants, steps, step=0, sam
 
 
 def checkpoint_payload(case):
-    """(groups, series, attrs) for ``pardem.io.checkpoint.write_checkpoint`` (every rank)."""
-    sim = case.sim
-    e, b = sim.elements, sim.bonds
-    n = e.n_owned
-    elements = {k: getattr(e, k)[:n] for k in ELEMENT_DATASETS if k != "x_build"}
-    elements["x_build"] = sim.domain.x_build if sim.domain is not None else e.x[:n]
-    if e.wall_h.shape[1]:
-        elements["wall_h"] = e.wall_h[:n]
-    once = b.counted_once(n)
-    bonds = {k: getattr(b, k)[once] for k in BOND_DATASETS}
-    groups = {"elements": elements, "bonds": bonds}
-    c = sim.contacts
-    if c is not None:
-        groups["contacts"] = {"gid_i": e.gid[c.i], "gid_j": e.gid[c.j], "shifts": c.shifts,
-                              "history": c.history}
-    series = samples_to_columns(case.samples)
-    slabs = sim.domain.slabs if sim.domain is not None else None
-    attrs = {"step": sim.step_count, "time": sim.time, "deck": case.deck, "constants": case.constants.as_dict(),
-             "plate_positions": sim.plates.positions.copy(), "plate_velocities": sim.plates.velocities(sim.time),
-             "rng_state": {"generator": None}, "slab_axis": case.constants.slab_axis,
-             # a bond broke in the last step: the contact list is rebuilt at the next one
-             "pairs_freed": int(sim.comm.any(sim.pairs_freed)),
-             "slab_cut_s": slabs.cut_s if slabs is not None else np.zeros(0),
-             "slab_cut_g": slabs.cut_g if slabs is not None else np.zeros(0, dtype=np.int64)}
-    return groups, series, attrs
+    """(groups, series, attrs) for ``pardem.io.checkpoint.write_checkpoint`` (every rank): the
+    simulation's state (``pardem.engine.snapshot.payload``), the deck, the constants and the samples."""
+    groups, attrs = snapshot.payload(case.sim, {"deck": case.deck, "constants": case.constants.as_dict(),
+                                                "slab_axis": case.constants.slab_axis})
+    return groups, samples_to_columns(case.samples), attrs
 
 
 SAMPLE_COUNTS = ("bonds_broken", "bonds_broken_step", "bonds_yielded")
@@ -417,7 +399,7 @@ def columns_to_samples(cols):
     return out
 
 
-def restore_case(comm, deck, path, steps=None):
+def restore_case(comm, deck, path, steps=None, meta=None):
     """The case continued from checkpoint ``path`` on this communicator (any number of ranks).
 
     On the rank count that wrote it, every rank reads back exactly its rows and its slabs, so the
@@ -425,7 +407,7 @@ def restore_case(comm, deck, path, steps=None):
     elements migrate to their new owners. CheckpointError for an unusable file, DeckError when the
     deck would change the physics.
     """
-    meta = checkpoint.inspect(path)
+    meta = checkpoint.inspect(path, comm=comm) if meta is None else meta   # collective verification
     if steps is not None and steps < int(meta["step"]):
         raise DeckError(f"--steps {steps} is before the checkpoint's step {int(meta['step'])}: --steps "
                         f"counts the run's total steps from its start")
@@ -438,81 +420,15 @@ def restore_case(comm, deck, path, steps=None):
     c = CompressionConstants.from_dict(meta["constants"])
     par = deck["parallel"]
     slab_axis = c.slab_axis if par["slab_axis"] == "auto" else "xyz".index(par["slab_axis"])
-    same = int(meta["n_ranks"]) == comm.size and slab_axis == int(meta["slab_axis"])
-    names = list(ELEMENT_DATASETS) + (["wall_h"] if checkpoint.has_dataset(path, "elements/wall_h") else [])
-    if same:
-        counts = np.asarray(meta["owned_counts"], dtype=np.int64)
-        off = int(counts[:comm.rank].sum())
-        el = checkpoint.read_rows(path, "elements", names, slice(off, off + int(counts[comm.rank])))
-        slabs = Slabs(slab_axis, meta["slab_cut_s"], meta["slab_cut_g"])
-    else:
-        N = int(meta["n_elements"])
-        stripe = slice(comm.rank * N // comm.size, (comm.rank + 1) * N // comm.size)
-        chunk = checkpoint.read_rows(path, "elements", ["x", "gid"], stripe)
-        slabs = Slabs.balanced(comm, slab_axis, chunk["x"][:, slab_axis], chunk["gid"])
-        el = checkpoint.read_rows(path, "elements", names, (["x", "gid"], lambda d: slabs.owner(
-            d["x"][:, slab_axis], d["gid"]) == comm.rank))
-    mine = el["gid"]
-    bd = checkpoint.read_rows(path, "bonds", checkpoint.bond_datasets(path), (["gid_i", "gid_j"],
-                              lambda d: np.isin(d["gid_i"], mine) | np.isin(d["gid_j"], mine)))
-    n = len(mine)
-    el["inv_mass"] = 1.0 / el["mass"]
-    el["inv_inertia"] = 1.0 / el["inertia"]
-    elements = Elements.unpack([el], n, copy=False)
-    bonds = Bonds.unpack([bd], bool(c.damped), copy=False, breakable=c.breakable,
-                         densify_p0=c.densify_p0)
-    domain = _slab_comm(comm, slabs, c.ghost_range, c.skin, par)
     contacts = _contacts(c.contact_law, c.contact_params, c.skin, c.contact_reach)
-    if contacts is not None:
-        cl = checkpoint.read_rows(path, "contacts", list(CONTACT_DATASETS), slice(0, None))
-    if same and domain is None:
-        bonds.relink(elements.gid)
-        if contacts is not None:
-            _restore_contacts(comm, contacts, elements, cl, x_build=el["x_build"])
-    elif same:
-        elements, bonds = domain.borders(elements, bonds, extra=c.skin if contacts is not None else 0.0)
-        domain.x_build = el["x_build"].copy()    # same rebuild steps as the uninterrupted run
-        if contacts is not None:
-            _restore_contacts(comm, contacts, elements, _this_ranks_block(meta, cl, comm.rank))
-    else:
-        if domain is None:
-            bonds.relink(elements.gid)
-        elements, bonds = _setup(domain, contacts, elements, bonds,
-                                 None if contacts is None else _contact_table(cl))
-    srt = np.argsort(el["gid"])     # the rows may have been reordered (migration sorts by gid)
-    order = srt[np.searchsorted(el["gid"][srt], elements.gid[:elements.n_owned])]
-    elements.f[:elements.n_owned] = el["f"][order]
-    elements.t[:elements.n_owned] = el["t"][order]
-    case = _assemble(comm, deck, elements, bonds, domain, c, steps, step=int(meta["step"]),
+    parts = snapshot.read(comm, path, meta, slab_axis, contacts=contacts,
+                          slab_comm=lambda slabs: _slab_comm(comm, slabs, c.ghost_range, c.skin, par),
+                          bond_options={"damped": bool(c.damped), "breakable": c.breakable,
+                                        "densify_p0": c.densify_p0})
+    case = _assemble(comm, deck, parts.elements, parts.bonds, parts.domain, c, steps, step=int(meta["step"]),
                      samples=columns_to_samples(meta["series"]), contacts=contacts)
-    case.sim.pairs_freed = bool(int(meta.get("pairs_freed", 0)))
+    snapshot.resume(case.sim, meta, parts.same)
     return case
-
-
-def _this_ranks_block(meta, cl, rank):
-    counts = np.asarray(meta["contacts_counts"], dtype=np.int64)
-    off = int(counts[:rank].sum())
-    return {k: v[off:off + int(counts[rank])] for k, v in cl.items()}
-
-
-def _contact_table(cl):
-    """The stored pairs with a history (unique), for a list rebuilt on other rows."""
-    live = np.any(cl["history"] != 0.0, axis=1)
-    _, first = np.unique(pair_keys(cl["gid_i"][live], cl["gid_j"][live]), return_index=True)
-    return {k: cl[k][live][first] for k in ("gid_i", "gid_j", "history")}
-
-
-def _restore_contacts(comm, contacts, elements, cl, x_build=None):
-    """Take back a stored list on the same rows (bit-for-bit restart); collective failure."""
-    err = None
-    try:
-        contacts.restore(elements, cl["gid_i"], cl["gid_j"], cl["shifts"], cl["history"], x_build=x_build)
-    except ValueError as exc:
-        err = exc
-    if comm.any(err is not None):    # every rank stops, none is left waiting
-        raise err or ValueError("a stored contact's element is missing on another rank")
-
-
 
 
 def _global_mean_axial_stiffness(comm, bonds, elements):
@@ -554,8 +470,10 @@ QUASI_STATIC_TRANSITS = 4.0   # loading shorter than this many wave transits is 
 def loading_warning(case):
     """A warning line when the loading is too fast to be quasi-static, else None."""
     duration = case.n_steps * case.sim.dt
+    if not case.constants.transit_time > 0.0:
+        return None
     ratio = duration / case.constants.transit_time
-    if ratio >= QUASI_STATIC_TRANSITS:
+    if not (math.isfinite(ratio) and ratio > 0.0) or ratio >= QUASI_STATIC_TRANSITS:
         return None
     return (f"warning: the loading lasts {duration:.3g} s, only {ratio:.2g} times the {case.constants.transit_time:.3g} s "
             f"an axial wave takes to cross the domain: the response is dynamic, not quasi-static; "

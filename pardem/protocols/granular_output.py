@@ -15,8 +15,9 @@ import os
 
 import numpy as np
 
-from pardem.config import DeckError, restart_differences
+from pardem.config import DeckError, Field, auto_or, choice, number, positive, restart_differences
 from pardem.engine import granular
+from pardem.protocols import deck_checks
 from pardem.io import checkpoint
 from pardem.io.checkpoint_writer import DECK_SECTION, CheckpointWriter
 from pardem.io.paraview import ParaViewWriter
@@ -24,6 +25,18 @@ from pardem.io.series import SeriesCSV, dict_row
 from pardem.io.series_h5 import SeriesH5
 
 CHECKPOINT_SECTION = DECK_SECTION   # the [checkpoint] section, shared with compress
+
+
+def run_section(dt_help, skin_help):
+    """The [run] section of a granular deck: time step fraction (``dt_help`` says of which critical
+    step), skin (``skin_help``: its auto value), slab axis, progress and watchdog periods."""
+    return {
+        "dt_fraction": Field(0.25, number(0.0, 1.0, hi_open=False), f"time step as a fraction of the {dt_help}"),
+        "skin": Field("auto", auto_or(positive()), f"Verlet skin [m] ({skin_help})"),
+        "slab_axis": Field("x", choice("x", "y", "z"), "axis the MPI slabs are stacked along: x, y or z"),
+        "progress_seconds": Field(10.0, positive(), "seconds between progress lines (rank 0)"),
+        "watchdog_seconds": deck_checks.WATCHDOG_FIELD,
+    }
 
 STEPS_HELP = ("stop the run at step N, counted from its start over all stages, and write a checkpoint "
               "to continue from with --restart (default: run the protocol to its end)")
@@ -45,11 +58,11 @@ def deck_differences(old, new, schema, may_change=(), may_change_sections=("outp
     return restart_differences(schema, old, new, may_change, may_change_sections)
 
 
-def inspect_restart(path, driver):
+def inspect_restart(path, driver, comm=None):
     """The checked attributes of checkpoint ``path`` (``checkpoint.inspect``) with its protocol
     state decoded (``meta["protocol"]``). CheckpointError when it is incomplete, unreadable or not
     a checkpoint of ``driver``."""
-    meta = checkpoint.inspect(path)
+    meta = checkpoint.inspect(path, comm=comm)
     raw = meta.get("protocol")
     state = json.loads(raw) if isinstance(raw, (str, bytes)) else raw
     if not isinstance(state, dict) or state.get("driver") != driver:

@@ -73,18 +73,57 @@ import time
 import numpy as np
 
 from pardem.engine import granular
-from pardem.config import DeckError, Field, auto_or, boolean, choice, number, number_list, positive
+from pardem.config import DeckError, Field, Schema, auto_or, boolean, choice, number, number_list, positive
+from pardem.protocols import deck_checks as dc
+from pardem.physics.timestep import rayleigh_time_step
+from pardem.physics import structure
 from pardem.physics import hertz_mindlin
 from pardem.physics.contact_frame import pair_geometry
 from pardem.engine.reducer import granular_measures
 from pardem.engine.relaxation import Fire
-from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit
+from pardem.parallel.exact_sum import exact_sum
+from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit, run_section
 
 ROW_KEYS = ("p0", "p", "Z", "Z_no_rattlers", "solid_fraction", "K_affine", "K_relaxed", "mu_affine",
             "mu_relaxed")
 
 
-SCHEMA = {
+def sample_checks(deck):
+    """Cross-field checks of the deck's sample (run by ``config.check_deck``): one fraction per
+    radius, representable masses, a memory estimate within the machine's."""
+    s = deck["sample"]
+    if len(s["fractions"]) != len(s["radii"]):
+        raise DeckError(f"sample.fractions has {len(s['fractions'])} entries: expected one per radius "
+                        f"({len(s['radii'])}) of sample.radii")
+    r_min, r_max = min(s["radii"]), max(s["radii"])
+    mean_volume = sum(f * 4.0 / 3.0 * np.pi * dc.cube(r) for f, r in zip(s["fractions"], s["radii"])) \
+        / sum(s["fractions"])
+    dc.granular_checks(float(s["n"]), s["density"], r_min, r_max, mean_volume, "sample.n, sample.radii")
+
+
+def run_checks(deck):
+    """The time step (``run.dt_fraction`` of the Rayleigh step of the smallest sphere) is a normal
+    double; the largest run the step caps allow is at most ``MAX_STEPS``; the servo's largest rate
+    cannot move the cell faster than the grains' wave speed; the drag removes less than the whole
+    velocity per step."""
+    s, mat, pr, mo = deck["sample"], deck["material"], deck["preparation"], deck["moduli"]
+    r_min = min(s["radii"])
+    dt = deck["run"]["dt_fraction"] * rayleigh_time_step(r_min, s["density"], mat["shear_modulus"],
+                                                         mat["poisson"])
+    dc.check_normal(dt, "the time step", "s", "run.dt_fraction, material.shear_modulus, sample.density, "
+                                              "sample.radii")
+    per_pressure = pr["max_steps"] + (2 * mo["max_relax_steps"] if mo["enabled"] else 0)
+    dc.check_steps(len(pr["pressures"]) * per_pressure, "preparation.pressures, preparation.max_steps, "
+                   "moduli.max_relax_steps", "the step caps allow a run that")
+    mean_volume = 4.0 / 3.0 * np.pi * dc.cube(r_min)
+    edge = (s["n"] * mean_volume / dc.DENSEST_FRACTION) ** (1.0 / 3.0)
+    E = young_modulus(mat)
+    dc.check_rate(pr["max_rate"], edge, np.sqrt(E / s["density"]), "preparation.max_rate",
+                  "material.shear_modulus, sample.density")
+    dc.check_drag(pr["damping"], dt, "preparation.damping")
+
+
+SCHEMA = Schema({
     "sample": {
         "n": Field(10000, number(lo=8, lo_open=False, integer=True), "number of spheres"),
         "radii": Field([0.105e-3, 0.095e-3], number_list(positive()), "sphere radii [m] (one per species)"),
@@ -130,27 +169,20 @@ SCHEMA = {
     },
     "moduli": {
         "enabled": Field(True, boolean, "measure the moduli at each pressure"),
-        "strain": Field("auto", auto_or(number(0.0, 1e-2)),
+        "strain": Field("auto", auto_or(number(dc.MIN_STRAIN, 1e-2, lo_open=False)),
                         "affine strain increment e, or auto = 0.01 <delta / d> over the contacts"),
         "max_relax_steps": Field(200000, number(lo=1, lo_open=False, integer=True),
                                  "largest number of steps of each relaxation after an increment"),
     },
-    "run": {
-        "dt_fraction": Field(0.25, number(0.0, 1.0, hi_open=False),
-                             "time step as a fraction of the Rayleigh critical step"),
-        "skin": Field("auto", auto_or(positive()),
-                      "Verlet skin [m] (displacement budget between list rebuilds); auto = 0.2 x the "
-                      "smallest radius"),
-        "slab_axis": Field("x", choice("x", "y", "z"), "axis the MPI slabs are stacked along: x, y or z"),
-        "progress_seconds": Field(10.0, positive(), "seconds between progress lines (rank 0)"),
-    },
+    "run": run_section("Rayleigh critical step",
+                       "displacement budget between list rebuilds; auto = 0.2 x the smallest radius"),
     "checkpoint": CHECKPOINT_SECTION,
     "output": {
         "vtk_every": Field(0, number(lo=0, lo_open=False, integer=True),
                            "steps between ParaView snapshots (DIR/paraview/pardem.pvd); 0 = none"),
         "plot": Field(True, boolean, "draw isotropic.png and force_distribution.png (needs matplotlib)"),
     },
-}
+}, checks=(sample_checks, run_checks))
 
 # the series: one row per equilibrium check (every preparation.check_every steps) of every stage
 STAGES = ("prepare", "K", "mu")      # the series' stage codes 0, 1, 2
@@ -265,8 +297,15 @@ def balance(sim, p0=None):
     fmag = np.sqrt(np.einsum("ij,ij->i", fc, fc))
     cf = contact_forces(sim)
     fcmag = np.sqrt(np.einsum("ij,ij->i", cf["force"], cf["force"]))
-    vol = np.sum(4.0 / 3.0 * np.pi * e.radius[:n] ** 3)
-    g = sim.comm.sum([fmag.sum(), n, fcmag.sum(), len(fcmag), vol])
+    # exact sums of the per-element and per-contact terms: the same bits on any number of ranks
+    # (the equilibrium decisions feed back into the run)
+    cols = np.zeros((max(n, len(fcmag)), 3))
+    cols[:n, 0] = fmag
+    cols[:len(fcmag), 1] = fcmag
+    cols[:n, 2] = 4.0 / 3.0 * np.pi * e.radius[:n] ** 3
+    sums = exact_sum(sim.comm, cols)
+    counts = sim.comm.sum([n, len(fcmag)])     # integers: exact
+    g = [sums[0], counts[0], sums[1], counts[1], sums[2]]
     fmax = sim.comm.max(float(fmag.max()) if n else 0.0)
     stress = sim.global_stress()
     p = float(-np.trace(stress) / 3.0)
@@ -281,18 +320,11 @@ def balance(sim, p0=None):
             "n_elements": int(round(g[1])), "solid_volume": float(g[4])}
 
 
-def remove_rattlers(n, gid_i, gid_j, min_contacts=4):
+def remove_rattlers(n, gid_i, gid_j, dim=3):
     """Mask [n] of the non-rattlers and mask [n_c] of the contacts between them: elements with
-    fewer than ``min_contacts`` contacts are removed with their contacts, repeatedly."""
-    alive = np.ones(n, dtype=bool)
-    live = np.ones(len(gid_i), dtype=bool)
-    while True:
-        deg = np.bincount(gid_i[live], minlength=n) + np.bincount(gid_j[live], minlength=n)
-        out = alive & (deg < min_contacts)
-        if not out.any():
-            return alive, live
-        alive &= ~out
-        live &= alive[gid_i] & alive[gid_j]
+    fewer than ``dim + 1`` contacts are removed with their contacts, repeatedly
+    (``pardem.physics.structure.rattlers``)."""
+    return structure.rattlers(n, gid_i, gid_j, dim=dim)
 
 
 def network(sim, bins=None):
@@ -311,6 +343,8 @@ def network(sim, bins=None):
         gj = np.concatenate([q["gj"] for q in parts]).astype(np.int64)
         fn = np.concatenate([q["fn"] for q in parts])
         ratio = np.concatenate([q["ratio"] for q in parts])
+        o = np.lexsort((gj, gi))        # gid order: the means do not depend on the ranks
+        gi, gj, fn, ratio = gi[o], gj[o], fn[o], ratio[o]
         alive, live = remove_rattlers(n, gi, gj)
         mean_fn = float(fn.mean()) if len(fn) else 0.0
         edges = np.linspace(0.0, 5.0, 51) if bins is None else bins
@@ -375,7 +409,7 @@ class ServoStiffness:
         self.every = int(every)
 
     def __call__(self, sim):
-        kd2 = float(sim.comm.sum(np.array([sim.contacts.stiffness(sim.elements)[1]]))[0])
+        kd2 = sim.contacts.global_affine_stiffness(sim.comm, sim.elements)
         p = max(-float(np.trace(sim.stress)) / 3.0, 0.0)
         sim.cell.servo_stiffness = kd2 / (3.0 * sim.cell.volume) + 2.0 * p
 

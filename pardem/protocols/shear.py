@@ -4,8 +4,9 @@ Method (chosen for the calibration's verification, docs/physics.md section 6). P
 displacement is along axis a, its gradient along axis b (``LT``: a = x, b = z). The engine's compression
 case builds the domain (lattice, bonds, slabs, ghosts, time step); its plates are removed. The elements
 of the two outer layers normal to b *and* of the two outer layers normal to a are driven kinematically
-through the affine simple shear ``u_a = gamma(t) (X_b - c_b)`` with the continuum's rotation
-``omega = gamma / 2`` about ``e_b x e_a``: they get infinite mass and inertia (``inv_mass = inv_inertia
+through the affine simple shear ``u_a = gamma(t) (X_b - c_b)`` with the lattice's element rotation
+``omega = w_b gamma`` about ``e_b x e_a``, ``w_b = x_b / (x_a + x_b)``, ``x_k = E_k r_k^4`` of the
+bonds along k (``element_rotation``; ``1/2``, the continuum's rotation, for equal bonds): they get infinite mass and inertia (``inv_mass = inv_inertia
 = 0``) and, before every step, the velocity and spin that carry them exactly to the prescribed state
 of the next step (velocity Verlet then drifts them there; the quaternion update is exact for a fixed
 axis). ``gamma(t)`` rises smoothly (half-cosine ramp of its rate), then grows at a constant rate.
@@ -29,11 +30,12 @@ is the slope of ``sigma_ab`` against ``gamma`` over the constant-rate phase (it 
 viscous stress of the bond damping, like ``pardem.protocols.compression.measure``); ``shear_modulus_secant`` is
 ``sigma_ab / gamma`` at the end.
 
-Known limitation: the driven elements turn by the continuum's rotation gamma / 2. That is the
-interior's rotation only when ``E r^4`` of the bonds along a and b are equal (true for calibrated
-bonds, docs/physics.md section 6: ``E_k r_k^4 = 16/(3 pi) G^D`` in every direction); otherwise the layers
-next to the driven ones are perturbed (measured: 13 % below the beam value for ``E r^4`` ten times
-larger along L than along T, plane LT, 8^3 elements).
+Why ``w_b``: the bonds along b turn with the shear (chord rotation gamma), those along a do not; the
+free rotation of an interior element minimises ``x_b (omega - gamma)^2 + x_a omega^2`` (the bending
+energy of the two bond families), hence ``omega = x_b / (x_a + x_b) gamma``. Driving the outer layers
+with the continuum's ``gamma / 2`` instead perturbs the layers next to them when ``x_a != x_b``
+(measured before this drive: 13 % below the lattice value for ``x`` ten times larger along L than along
+T, plane LT, 8^3 elements).
 """
 import copy
 import math
@@ -63,12 +65,12 @@ class ShearDrive:
     """
     every = 1
 
-    def __init__(self, a, b, centre_b, rate, ramp, turn=True):
+    def __init__(self, a, b, centre_b, rate, ramp, turn=0.5):
         self.a, self.b = a, b
         self.centre_b = float(centre_b)
         self.rate, self.ramp = float(rate), float(ramp)
-        spin = np.cross(np.eye(3)[b], np.eye(3)[a])      # omega = gamma / 2 (e_b x e_a)
-        self.spin = 0.5 * spin if turn else 0.0 * spin
+        spin = np.cross(np.eye(3)[b], np.eye(3)[a])      # omega = turn gamma (e_b x e_a)
+        self.spin = float(turn) * spin
 
     def __call__(self, sim):
         e = sim.elements
@@ -84,8 +86,9 @@ class ShearDrive:
 class ShearSampler:
     """Operation: samples (time, gamma, sigma_ab) every ``every`` steps with one collective."""
 
-    def __init__(self, comm, a, b, plane_b, area, origin, every):
+    def __init__(self, comm, a, b, plane_b, area, origin, every, sinks=()):
         self.comm, self.a, self.b = comm, a, b
+        self.sinks = list(sinks)
         self.plane_b, self.area = float(plane_b), float(area)
         self.origin = np.asarray(origin, dtype=np.float64)
         self.every = max(1, int(every))
@@ -105,6 +108,24 @@ class ShearSampler:
         self.samples.append({"step": sim.step_count, "time": sim.time,
                              "gamma": float(H[self.a, self.b] + H[self.b, self.a]),
                              "stress": float(-g[25] / self.area), "H": H})
+        for sink in self.sinks:
+            sink(self.samples[-1])
+
+
+# the series of a shear test (``ShearSampler`` samples): columns and units
+SERIES_COLUMNS = ("step", "time", "gamma", "stress")
+SERIES_UNITS = ("1", "s", "1", "Pa")
+SERIES_DESCRIPTION = ("pardem simple-shear series: one row per sample of the engineering shear strain gamma "
+                      "(least-squares fit of the free elements) and the shear stress sigma_ab [Pa] across the "
+                      "mid-plane; one dataset per column with its unit in the 'units' attribute")
+
+
+def element_rotation(young, radius_ratio, plane):
+    """``w_b = x_b / (x_a + x_b)``, ``x_k = E_k r_k^4`` of the (L, R, T) bond triples: the interior
+    element's rotation per unit shear strain of ``plane`` (module docstring)."""
+    a, b = SHEAR_PLANES[plane]
+    x = [E * r**4 for E, r in zip(young, radius_ratio)]
+    return x[b] / (x[a] + x[b])
 
 
 def shear_deck(deck, plane):
@@ -114,7 +135,8 @@ def shear_deck(deck, plane):
     return check_deck(COMPRESS_SCHEMA, raw)
 
 
-def run_shear(comm, deck, plane="LT", strain=0.002, transits=8.0, shear_estimate=None, drive="faces"):
+def run_shear(comm, deck, plane="LT", strain=0.002, transits=8.0, shear_estimate=None, drive="faces",
+              sinks=(), operations=(), every=None, steps=None):
     """Simple shear of the ordered domain of the checked compress ``deck`` in ``plane`` (LR, LT, RT)
     up to the engineering strain ``strain``; collective. Returns a dict (same on every rank):
 
@@ -127,6 +149,11 @@ def run_shear(comm, deck, plane="LT", strain=0.002, transits=8.0, shear_estimate
     density. ``drive``: "faces" (the method above) or "layers" (only the two layers normal to b, not
     turning: the naive test, kept to show its end effects). DeckError unless the deck's domain is an
     ordered lattice with its frame untilted (the lattice axes are the test axes).
+    ``sinks``: callables given each sample (dict: step, time, gamma, stress [Pa], H); ``operations``:
+    more operations of the run (e.g. a ParaView writer), called after the drive and the sampler;
+    ``every``: steps between samples (default about 200 per run); ``steps``: run only that many steps
+    (the rate stays that of the full loading: a shorter run may be too short to measure, slope NaN).
+    The result also holds ``samples_after_ramp`` and ``curve`` (the sampled gamma and stress [Pa]).
     """
     if deck["domain"]["kind"] != "ordered" or deck["domain"]["tilt_deg"] != 0.0:
         raise DeckError(f"domain.kind = {deck['domain']['kind']!r}, domain.tilt_deg = {deck['domain']['tilt_deg']}: "
@@ -168,11 +195,15 @@ def run_shear(comm, deck, plane="LT", strain=0.002, transits=8.0, shear_estimate
     duration = transits * transit + 0.5 * ramp
     rate = strain / (duration - 0.5 * ramp)
     n_steps = max(1, math.ceil(duration / sim.dt - 1e-9))
-    mover = ShearDrive(a, b, centre_b, rate, ramp, turn=drive == "faces")
-    sampler = ShearSampler(comm, a, b, plane_b, area, case.constants.origin, max(1, n_steps // 200))
+    turn = element_rotation(as_lrt(deck["bonds"]["young"]), as_lrt(deck["bonds"]["radius_ratio"]), plane)
+    mover = ShearDrive(a, b, centre_b, rate, ramp, turn=turn if drive == "faces" else 0.0)
+    n_steps = n_steps if steps is None else int(steps)
+    sampler = ShearSampler(comm, a, b, plane_b, area, case.constants.origin, every or max(1, n_steps // 200), sinks)
     mover(sim)
     sampler(sim)
-    sim.run(n_steps, operations=[mover, sampler])
+    for op in operations:
+        op(sim)        # the initial state
+    sim.run(n_steps, operations=[mover, sampler, *operations])
     s = sampler.samples
     t = np.array([x["time"] for x in s])
     g = np.array([x["gamma"] for x in s])
@@ -183,4 +214,6 @@ def run_shear(comm, deck, plane="LT", strain=0.002, transits=8.0, shear_estimate
             "shear_modulus_secant": float(tau[-1] / g[-1]) if g[-1] != 0 else math.nan,
             "gamma": float(g[-1]), "gamma_imposed": float(shear_history(sim.time, rate, ramp)),
             "stress": float(tau[-1]), "steps": n_steps, "dt": sim.dt, "n_elements": n_el,
-            "n_driven": n_driven, "transit_time": float(transit), "ramp_time": float(ramp), "samples": len(s)}
+            "n_driven": n_driven, "transit_time": float(transit), "ramp_time": float(ramp), "samples": len(s),
+            "samples_after_ramp": int(keep.sum()), "element_rotation": turn,
+            "curve": {"gamma": g.tolist(), "stress": tau.tolist()}}

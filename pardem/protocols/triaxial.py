@@ -32,13 +32,50 @@ import numpy as np
 
 from pardem.engine import cement as cementing
 from pardem.engine import granular
-from pardem.config import Field, auto_or, boolean, choice, number, positive
+from pardem.config import DeckError, Field, Schema, auto_or, boolean, choice, number, positive
+from pardem.protocols import deck_checks as dc
 from pardem.engine.periodic_cell import PeriodicCell
-from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit
+from pardem.parallel.exact_sum import exact_sum
+from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit, run_section
 
 AXES = "xyz"
 
-SCHEMA = {
+
+def sample_checks(deck):
+    """Representable masses and a memory estimate within the machine's (``config.check_deck``)."""
+    s = deck["sample"]
+    R, d = s["radius"], s["dispersity"]
+    n = float(s["per_edge"]) ** 3
+    mean_volume = 4.0 / 3.0 * math.pi * dc.cube(R) * (1.0 + d * d)    # <r^3> of radii uniform in R (1 +- d)
+    dc.granular_checks(n, s["density"], R * (1.0 - d), R * (1.0 + d), mean_volume, "sample.per_edge, sample.radius")
+
+
+def run_checks(deck):
+    """The time step (``time_step``: Rayleigh and cement steps of the smallest sphere) is a normal
+    double; the loading (``loading_steps``' count: each step shortens the axial edge by the factor
+    ``1 - rate dt``) takes at most ``MAX_STEPS`` steps; no servo or loading rate moves the cell
+    faster than the grains' wave speed; the drag removes less than the whole velocity per step."""
+    s, ld, pr = deck["sample"], deck["loading"], deck["preparation"]
+    try:
+        dt = time_step(deck)
+    except (ValueError, ArithmeticError) as err:
+        raise DeckError(f"contacts, cement and run.dt_fraction give no time step ({err})") from None
+    keys = "run.dt_fraction, contacts.young, cement.normal_stiffness, sample.density, sample.radius"
+    dc.check_normal(dt, "the time step", "s", keys)
+    R, d = s["radius"], s["dispersity"]
+    edge = (float(s["per_edge"]) ** 3 * 4.0 / 3.0 * math.pi * dc.cube(R * (1.0 - d)) / dc.DENSEST_FRACTION) \
+        ** (1.0 / 3.0)
+    c = math.sqrt(deck["contacts"]["young"] / s["density"])
+    for key, rate in (("loading.strain_rate", ld["strain_rate"]), ("loading.max_rate", ld["max_rate"]),
+                      ("preparation.max_rate", pr["max_rate"])):
+        dc.check_rate(rate, edge, c, key, "contacts.young, sample.density")
+    per_step = ld["strain_rate"] * dt      # < 1 here: the rate is below c / edge and dt below R / c
+    steps = math.log1p(-ld["strain"]) / math.log1p(-per_step) if 0.0 < per_step < 1.0 else math.inf
+    dc.check_steps(steps, f"loading.strain, loading.strain_rate and the time step ({keys})", "the loading")
+    dc.check_drag(pr["viscous_damping"], dt, "preparation.viscous_damping")
+
+
+SCHEMA = Schema({
     "sample": {
         "per_edge": Field(10, number(lo=3, lo_open=False, integer=True),
                           "spheres per edge of the initial lattice: N = per_edge^3"),
@@ -86,19 +123,13 @@ SCHEMA = {
         "confining_pressure": Field(1e6, positive(), "pc [Pa]: preparation pressure and lateral stress"),
         "axis": Field("z", choice("x", "y", "z"), "axial (loading) axis: x, y or z"),
         "strain_rate": Field(2.0, positive(), "axial strain rate [1/s] (compression)"),
-        "strain": Field(0.05, number(0.0, 0.5), "final axial strain"),
+        "strain": Field(0.05, number(dc.MIN_STRAIN, 0.5, lo_open=False), "final axial strain"),
         "gain": Field(3e-4, positive(), "lateral stress servo gain [1/(Pa s)]"),
         "max_rate": Field(20.0, positive(), "cap of the lateral strain rates [1/s]"),
     },
-    "run": {
-        "dt_fraction": Field(0.25, number(0.0, 1.0, hi_open=False),
-                             "time step as a fraction of the critical (Rayleigh / cement) step"),
-        "skin": Field("auto", auto_or(positive()),
-                      "Verlet skin [m] (must exceed the cement's largest stretch sqrt(2 E_max / Sn)); "
-                      "auto = 0.1 x the mean radius sample.radius"),
-        "slab_axis": Field("x", choice("x", "y", "z"), "axis of the slabs of the ranks: x, y or z"),
-        "progress_seconds": Field(10.0, positive(), "seconds between progress lines (rank 0)"),
-    },
+    "run": run_section("critical (Rayleigh / cement) step",
+                       "must exceed the cement's largest stretch sqrt(2 E_max / Sn); auto = 0.1 x the mean "
+                       "radius sample.radius"),
     "checkpoint": CHECKPOINT_SECTION,
     "output": {
         "samples": Field(200, number(lo=2, lo_open=False, integer=True), "rows of the loading series"),
@@ -106,7 +137,7 @@ SCHEMA = {
                            "steps between ParaView snapshots (DIR/paraview/pardem.pvd); 0 = none"),
         "plot": Field(True, boolean, "draw triaxial.png (needs matplotlib)"),
     },
-}
+}, checks=(sample_checks, run_checks))
 
 COLUMNS = ("step", "time", "eps_axial", "eps_vol", "q", "p", "sigma_axial", "sigma_lateral_1",
            "sigma_lateral_2", "broken_fraction", "cements_intact", "cements_fading", "coordination",
@@ -208,7 +239,7 @@ def prepare(case, deck, progress=None, state=None, operations=(), stop=None):
         if at_check and st["checked_step"] != step:
             p = -float(np.trace(sim.stress)) / 3.0
             ke = sim.kinetic_energy()
-            el = float(sim.comm.sum(sim.contact_energy))
+            el = sim.contacts.global_sums(sim.comm)[1]
             ok = abs(p - pc) <= pr["tolerance"] * pc and ke <= pr["kinetic_ratio"] * max(el, 1e-300)
             st["met"] = st["met"] + 1 if ok else 0
             st["checked_step"] = step
@@ -231,13 +262,13 @@ def prepare(case, deck, progress=None, state=None, operations=(), stop=None):
 def solid_fraction(sim):
     """Sphere volume over cell volume (overlap lenses not removed: they are ~1e-3 of it)."""
     e = sim.elements
-    v = float(sim.comm.sum(4.0 / 3.0 * math.pi * float(np.sum(e.radius[:e.n_owned] ** 3))))
+    v = 4.0 / 3.0 * math.pi * exact_sum(sim.comm, e.radius[:e.n_owned] ** 3)
     return v / sim.cell.volume
 
 
 def coordination(sim):
     n = float(sim.comm.sum(float(sim.elements.n_owned)))
-    return 2.0 * float(sim.comm.sum(sim.contacts.sums[9])) / n
+    return 2.0 * float(sim.comm.sum(sim.contacts.n_touching)) / n
 
 
 def cement(case, deck):

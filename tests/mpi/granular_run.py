@@ -58,7 +58,7 @@ class Record:
 
     def __call__(self, s):
         energies.append((s.step_count, s.kinetic_energy(), float(comm.sum(s.contact_energy)),
-                         float(comm.sum(s.contacts.sums[9]))))
+                         float(comm.sum(s.contacts.n_touching))))
 
 
 ops = [Record()]

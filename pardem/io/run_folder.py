@@ -1,0 +1,165 @@
+"""The output folder of a run: checked, created, and held by one run at a time.
+
+``claim`` is collective: rank 0 checks the path, creates the folder, takes an exclusive ``fcntl``
+lock on ``<folder>/.pardem.lock`` (kept until the process ends, so a second concurrent run into
+the same folder is refused), and refuses a folder that holds another run's results unless
+``overwrite``, which first removes exactly the entries of ``RESULTS`` found there (nothing else:
+a user's own files in the folder stay). Every rank gets the same outcome: the absolute path, or
+the same ``DeckError`` (a bad path, exit 2) or ``OutputError`` (the file system refused, exit 4).
+"""
+import errno
+import fcntl
+import os
+import shutil
+
+from pardem.config import DeckError
+from pardem.engine.errors import OutputError
+
+LOCK_NAME = ".pardem.lock"
+# every file or folder a pardem driver writes into its output folder (a run's results)
+RESULTS = ("summary.json", "series.csv", "series.h5", "series", "checkpoints", "paraview", "records",
+           "force_distribution.png", "compress_calibrated.toml",
+           *(f"{name}.{ext}" for name in ("isotropic", "triaxial", "calibration", "anisotropy")
+             for ext in ("json", "csv", "h5", "png")))
+# pseudo-filesystems and devices: never an output folder
+FORBIDDEN_ROOTS = ("/proc", "/sys", "/dev")
+OUTPUT_ERRNOS = (errno.ENOSPC, errno.EACCES, errno.EROFS, errno.EDQUOT, errno.EPERM)
+
+_held = {}      # absolute folder -> open lock file of this process (kept for the whole run)
+
+
+def check_path(out):
+    """The absolute, normalised folder ``out`` or ``DeckError`` (one line) if it cannot be one:
+    empty, in /proc, /sys or /dev, a name longer than the file system allows, an existing
+    non-directory, or under a file."""
+    if not isinstance(out, str) or not out.strip():
+        raise DeckError(f"--out {out!r}: expected the path of an output folder (empty)")
+    path = os.path.abspath(out)
+    real = os.path.realpath(path)
+    for root in FORBIDDEN_ROOTS:
+        if real == root or real.startswith(root + os.sep):
+            raise DeckError(f"--out {out}: {real} is in {root}, not a place for results; choose a folder "
+                            f"on a disk")
+    if len(path.encode()) >= _limit("PC_PATH_MAX", 4096):
+        raise DeckError(f"--out {out[:40]}...: path of {len(path.encode())} bytes, the file system allows "
+                        f"{_limit('PC_PATH_MAX', 4096) - 1}")
+    longest = _limit("PC_NAME_MAX", 255)
+    for part in path.split(os.sep):
+        if len(part.encode()) > longest:
+            raise DeckError(f"--out {out[:40]}...: a name of {len(part.encode())} bytes in the path, the file "
+                            f"system allows {longest}")
+    head = path
+    while head != os.path.dirname(head):      # the deepest part that exists must be a directory
+        if os.path.lexists(head):
+            if not os.path.isdir(head):
+                what = "" if head == path else f" ({head} is not a directory)"
+                raise DeckError(f"--out {out}: exists and is not a directory{what}; expected a folder")
+            break
+        head = os.path.dirname(head)
+    return path
+
+
+def _limit(name, default):
+    try:
+        return os.pathconf("/", name)
+    except (OSError, ValueError):
+        return default
+
+
+def results_in(path):
+    """The entries of ``RESULTS`` present in folder ``path`` (sorted)."""
+    return sorted(name for name in RESULTS if os.path.lexists(os.path.join(path, name)))
+
+
+def _claim_here(out, overwrite, restart):
+    path = check_path(out)
+    if restart:
+        ck = os.path.realpath(restart)
+        if ck == os.path.realpath(path) or ck.startswith(os.path.realpath(path) + os.sep):
+            raise DeckError(f"--out {out}: holds the checkpoint being restarted ({restart}); a restart writes into "
+                            f"its own folder and never touches the original run's files (omit --out for "
+                            f"<run>-restart-<time>)")
+    try:
+        os.makedirs(path, exist_ok=True)
+        lock = open(os.path.join(path, LOCK_NAME), "a+")
+    except OSError as err:
+        raise _output_error(out, err) from err
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as err:
+        lock.seek(0)
+        holder = lock.read().strip()
+        lock.close()
+        if err.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+            raise DeckError(f"--out {out}: in use by another run ({holder or 'pid unknown'}); choose another "
+                            f"--out") from None
+        raise _output_error(out, err) from err
+    try:
+        found = results_in(path)
+        if found and not overwrite:
+            raise DeckError(f"--out {out}: holds the results of another run ({', '.join(found)}); give "
+                            f"--overwrite to replace them, or another --out")
+        for name in found:
+            target = os.path.join(path, name)
+            if os.path.isdir(target) and not os.path.islink(target):
+                shutil.rmtree(target)
+            else:
+                os.remove(target)
+        lock.seek(0)
+        lock.truncate()
+        lock.write(f"pid {os.getpid()} on {os.uname().nodename}\n")
+        lock.flush()
+    except OSError as err:
+        lock.close()
+        raise _output_error(out, err) from err
+    except DeckError:
+        lock.close()
+        raise
+    _held[path] = lock
+    return path
+
+
+def _output_error(out, err):
+    reason = err.strerror or str(err)
+    return OutputError(f"--out {out}: cannot write there: {reason}"
+                       + (f" ({err.filename})" if err.filename else ""))
+
+
+def claim(comm, out, overwrite=False, restart=None):
+    """Collective: the absolute output folder ``out``, checked, created and locked for this run.
+
+    ``overwrite``: remove the previous results (``RESULTS``) found there instead of refusing.
+    ``restart``: the checkpoint being continued; ``out`` must not contain it.
+    Raises the same ``DeckError`` (bad path, folder in use or holding results) or
+    ``OutputError`` (the file system refused) on every rank.
+    """
+    outcome = None
+    if comm.is_root:
+        try:
+            outcome = ("ok", _claim_here(out, overwrite, restart))
+        except DeckError as err:
+            outcome = ("deck", str(err))
+        except OutputError as err:
+            outcome = ("output", str(err))
+    kind, value = comm.bcast(outcome)
+    if kind == "deck":
+        raise DeckError(value)
+    if kind == "output":
+        err = OutputError(value)
+        err.all_ranks = True      # raised on every rank: no abort needed (pardem.drivers.cli)
+        raise err
+    return value
+
+
+def release_all():
+    """Drop every lock this process holds (``cli.run_driver`` at the end of a run)."""
+    for path in list(_held):
+        release(path)
+
+
+def release(path):
+    """Drop this process's lock of folder ``path`` (the end of a run in a process that goes on,
+    e.g. tests calling a driver's ``main``)."""
+    lock = _held.pop(os.path.abspath(path), None)
+    if lock is not None:
+        lock.close()

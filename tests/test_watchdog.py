@@ -1,0 +1,72 @@
+"""The watchdog (issue 16, item 5): no rank waits for ever. Two ranks run a coupled loop (one
+allreduce and one heartbeat per step, as ``Simulation.run``); one rank is stopped with SIGSTOP,
+or leaves while the other waits: the job ends within the timeout plus a few seconds, with one
+line naming the silent rank.
+"""
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+
+from tests.test_signals import Job, rank_pids, survivors
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+LOOP = str(ROOT / "tests" / "mpi" / "watchdog_loop.py")
+TIMEOUT = 5.0
+# the verdict comes at most one period (1 s) after the timeout, the abort after 1 s of grace
+# (Communicator.abort); 15 s more leave room for a machine shared by other jobs
+LATE = 15.0
+
+
+def watchdog_lines(job):
+    return [ln for ln in job.stderr.splitlines() if ln.startswith("pardem: error: watchdog:")]
+
+
+def test_a_stopped_rank_is_named_and_the_job_ends():
+    job = Job([LOOP, str(TIMEOUT), "600"])
+    try:
+        job.wait_for("running", timeout=120)
+        ranks = {}
+        for line in job.stdout:
+            if line.startswith("rank ") and " pid " in line:
+                ranks[int(line.split()[1])] = int(line.split()[3])
+        assert sorted(ranks) == [0, 1] and sorted(ranks.values()) == sorted(rank_pids(job.p.pid))
+        t0 = time.monotonic()
+        subprocess.run(["kill", "-STOP", str(ranks[1])], check=True)
+        code = job.finish(timeout=TIMEOUT + LATE + 30)
+        elapsed = time.monotonic() - t0
+    finally:
+        job.kill()
+    assert code == 1, job.stderr
+    assert TIMEOUT <= elapsed < TIMEOUT + LATE, elapsed
+    (line,) = watchdog_lines(job)
+    assert "rank 1 silent for" in line and "run.watchdog_seconds = 5" in line, job.stderr
+    assert not survivors(list(ranks.values())), "a rank outlived the abort (the stopped one too)"
+
+
+def test_ranks_waiting_on_a_finished_rank_are_aborted():
+    """Rank 1 leaves its loop (a bug: the ranks disagree on the step count) while rank 0 waits in
+    an allreduce: everyone is alive, nobody progresses."""
+    job = Job([LOOP, str(TIMEOUT), "600", "finish-early"])
+    try:
+        job.wait_for("running", timeout=120)
+        code = job.finish(timeout=TIMEOUT + LATE + 30)
+    finally:
+        job.kill()
+    assert code == 1, job.stderr
+    (line,) = watchdog_lines(job)
+    assert "no progress on rank 0" in line and "finished: rank 1" in line, job.stderr
+
+
+def test_a_healthy_run_is_left_alone_and_ends_cleanly():
+    """A loop of 3 s with a 1 s limit: every rank beats, so no verdict; the watchdog's messages end
+    without an MPI error at finalisation."""
+    job = Job([LOOP, "1", "3"])
+    try:
+        code = job.finish(timeout=120)
+    finally:
+        job.kill()
+    assert code == 0, job.stderr
+    assert not watchdog_lines(job) and "Assertion" not in job.stderr, job.stderr
+    assert sum(ln.startswith("rank ") and " done after " in ln for ln in job.stdout) == 2
