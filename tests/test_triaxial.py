@@ -222,7 +222,7 @@ def restart_runs(tmp_path_factory):
     assert p.returncode != 0 and "fault injected" in p.stderr, p.stderr[-2000:]
     last = sorted((d / "crashed" / "checkpoints").glob("checkpoint-*.h5"))[-1]
     assert last.name == "checkpoint-0000004000.h5"
-    run_tx(2, d / "crashed", "--restart", last)
+    run_tx(2, d / "crashed_restart", "--restart", last)   # a restart writes its own folder
     return d, stopped
 
 
@@ -234,7 +234,7 @@ def test_driver_restart_is_bit_for_bit(restart_runs):
     d, stopped = restart_runs
     full = comparable(d / "full" / "triaxial.json")
     assert full["finished"] and not full["preparation"]["converged"] and full["preparation"]["steps"] == 3000
-    for name in ("from_prep", "from_load", "continued", "crashed"):
+    for name in ("from_prep", "from_load", "continued", "crashed_restart"):
         assert (d / name / "triaxial.csv").read_bytes() == (d / "full" / "triaxial.csv").read_bytes(), name
         assert comparable(d / name / "triaxial.json") == full, name
     s = json.loads((d / "stopped" / "triaxial.json").read_text())
