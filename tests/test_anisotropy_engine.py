@@ -124,3 +124,29 @@ def test_spherical_domain_is_stiffer_than_normalised(packing):
     E_sph = _modulus(deck("spherical"), packing)
     print(f"E_x spherical {E_sph:.4g} Pa, normalised {E_norm:.4g} Pa, ratio {E_sph / E_norm:.3f}")
     assert 1.2 < E_sph / E_norm < 3.0 ** 2.5
+
+
+@pytest.mark.parametrize("law", ALL_LAWS)
+def test_tilted_ordered_domain_is_the_same_under_every_law_off_its_flat_faces(law):
+    """A tilted ordered lattice's bonds lie along L, R, T, where every law must return the axis values:
+    the domain is the TOR domain there (to rounding: the tilted chords are unit vectors to 1e-16, and
+    arccos near 1 turns that into 1e-8 rad, which the linear law turns into 1e-15 relative). Only the bonds of the loaded faces, made flat by moving
+    their elements onto the face (``domains.ordered``), leave the axes; there the law's own formula
+    holds (``_independent``) and at least one bond differs from TOR's (tilt 30 deg: those bonds turn
+    by up to 30 deg, where the laws differ by tens of %), except for TOR itself."""
+    comm = Communicator()
+    sets = ["domain.box=[0.0045, 0.0045, 0.0015]", "domain.radius=0.25e-3", "domain.tilt_deg=30.0",
+            f"bonds.young={YOUNG}"]
+    ref = build_case(comm, load_deck(COMPRESS_SCHEMA, None, sets + ["bonds.law=\"TOR\""])).sim.bonds
+    case = build_case(comm, load_deck(COMPRESS_SCHEMA, None, sets + [f"bonds.law=\"{law}\""]))
+    b = case.sim.bonds
+    u = _chords(case)
+    frame = lrt_frame(30.0)
+    on_axis = np.isclose(np.abs(u @ frame.T).max(axis=1), 1.0, rtol=0, atol=1e-12)
+    assert 0 < np.count_nonzero(~on_axis) < 0.2 * b.n
+    for name in ("young", "radius", "ka", "kb", "kt"):
+        np.testing.assert_allclose(getattr(b, name)[on_axis], getattr(ref, name)[on_axis], rtol=1e-12, atol=0)
+    assert set(np.round(ref.young[on_axis])) == set(YOUNG)
+    np.testing.assert_allclose(b.young, _independent(law, u, frame, YOUNG), rtol=1e-10)
+    differs = np.abs(b.young[~on_axis] / ref.young[~on_axis] - 1.0).max()
+    assert differs == 0.0 if law == "TOR" else differs > 0.05

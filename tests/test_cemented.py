@@ -150,6 +150,32 @@ def test_rupture_at_the_analytic_stretch_then_fade_then_plain():
         np.testing.assert_array_equal(f, fp)
 
 
+def test_rupture_tests_the_elastic_cement_energy_not_the_damping():
+    """The cement's strength criterion is its stored elastic energy (docs/physics.md 8), which
+    the normal (Hertz) damping does not enter: pulled apart fast (10 m/s), a damped pair
+    (restitution 0.3) breaks at the same step as an undamped one, while its total normal force
+    differed (the damping acted)."""
+    dt, dx = 1e-8, 1e-7                   # 10 m/s
+    delta0, e_th = 3e-6, 2e-6
+    broke, forces = {}, {}
+    for e_r in (1.0, 0.3):
+        p = cemented(fade=1e-7, restitution=e_r)
+        h = intact(delta0, threshold=e_th)
+        e = pair(delta0)
+        e.v[1, 0] = dx / dt
+        k = 0
+        forces[e_r] = []
+        while h[0, hm.CEMENT_STATE] > 0.0:
+            k += 1
+            e.x[1, 0] = (2 * R - delta0) + k * dx
+            forces[e_r].append(-force_on_i(p, e, h, dt)[0][0])
+            assert k < 1000
+        broke[e_r] = k
+    assert broke[0.3] == broke[1.0]
+    # first step, still overlapping (delta = 2.9e-6 m): the dashpot pulled (rate < 0)
+    assert forces[0.3][0] < forces[1.0][0] - 1e-3 * abs(forces[1.0][0])
+
+
 def test_rupture_under_compression_with_hertz_then_plain_equals_uncemented_kernel():
     """Pushed together: the cement breaks in compression too (the energy is symmetric); after
     the fade, cemented and uncemented kernels give the same forces and histories while the pair

@@ -8,8 +8,9 @@ Mindlin tangential spring kt = 8 G* a loaded by the affine tangential displaceme
 and to first order the linearised affine stiffness of the contact network (kn d^2, the pre-stress
 term fn / d from the rotation of the branch vectors, kt for shear); relaxed moduli do not exceed
 the affine ones; the driver on 2 ranks (FIRE preparation, adaptive step) writes isotropic.json
-with exactly the required keys, gives the deck's step back for the moduli, and agrees with 1 rank
-to a measured tolerance (the gas compression is chaotic, so only statistically). FIRE's rules
+with exactly the required keys, gives the deck's step back for the moduli, has an affine K within
+the bounds Walton's effective medium theory puts on it (force heterogeneity, size ratio) and its
+pressure scaling, and equals the 1-rank run bit for bit (reproducible sums). FIRE's rules
 (steering, stop, mixing, the adaptive step and its stability bound) on hand-made states.
 """
 import json
@@ -96,6 +97,23 @@ def linear_affine_increment(c, eps, p_stress):
     return sums / c["V"] - p_stress * np.trace(E)
 
 
+def second_order(c, sign, e):
+    """Relative second-order term of the affine secant modulus of the diagonal strain ``sign * e``
+    over its first-order (tangent) value: each contact's stiffnesses kn, kt grow as delta^(1/2),
+    delta changes by ``-e (n.s.n) |d|`` over the increment, so the secant sees them changed by
+    ``-e (n.s.n) |d| / (4 delta)``, weighted by the contact's share of the affine energy
+    ``kn |d|^2 (n.s.n)^2 + kt |d|^2 |P s n|^2``. Returns ``(q, chi)``: that relative term and the
+    energy-weighted mean of ``(e (n.s.n) |d| / delta)^2`` (the scale of the next order)."""
+    E = np.diag(sign)
+    n, ln = c["n"], np.linalg.norm(c["d"], axis=1)
+    en = n @ E
+    nen = np.einsum("ij,ij->i", en, n)
+    tang = en - nen[:, None] * n
+    w = c["kn"] * ln**2 * nen**2 + c["kt"] * ln**2 * np.einsum("ij,ij->i", tang, tang)
+    x = -e * nen * ln / (4.0 * c["delta"])
+    return float(np.sum(w * x) / np.sum(w)), float(np.sum(w * (4.0 * x) ** 2) / np.sum(w))
+
+
 def test_equilibrium_criteria_hold_at_p0(prepared):
     deck, case, info = prepared
     tol = deck["equilibrium"]
@@ -146,9 +164,24 @@ def test_affine_response_against_numpy(name, sign):
     expect = fn(s_ref, s_aff, res["L0"], res["L1"])
     assert measured == pytest.approx(expect, rel=1e-5)       # measured 1e-7
     lin = fn(s_ref, s_ref + linear_affine_increment(c0, eps, s_ref), res["L0"], res["L1"])
-    assert measured == pytest.approx(lin, rel=0.01)          # second order: 3e-3 (K), 1e-4 (mu)
+    q, chi = second_order(c0, np.asarray(sign), strain)
+    s_free, _ = oracle_stress(x, r, L, eps, e_star, g_star, np.inf)        # no Coulomb cap
+    slip = (expect - fn(s_ref, s_free, res["L0"], res["L1"])) / lin       # what sliding removes (<= 0)
+    # the secant over the tangent: the Hertz second-order term q (3.1e-3 for K, 9e-5 for mu) plus
+    # the sliding of the weakest contacts (0 for K, -3.4e-4 for mu), up to the next order of the
+    # delta^(1/2) expansion, x^2 / 24 per contact with x = e (n.s.n) |d| / delta: chi / 24 (chi =
+    # energy-weighted <x^2>, 9e-4 and 4e-4), taken 3 times; measured remainders 1.6e-5, 2.2e-5
+    assert abs(measured / lin - 1.0 - q - slip) < chi / 8.0, (q, slip, chi)
     relaxed = fn(res["s0"], res["relaxed"], res["L0"], res["L1"])
     assert res["converged"] and 0.0 < relaxed <= measured
+
+
+def emt_ratio(row, G=30e9, nu=0.2):
+    """(K_affine - 2 p / 3) / K_Walton(Z, phi, p) of a summary row (the small deck's glass; the row's
+    solid fraction removes the overlap lenses, which changes phi by 3/16 Z (delta/R)^2 ~ 5e-6)."""
+    from pardem.physics.effective_medium import hertz_mindlin_emt
+    w = hertz_mindlin_emt(row["Z"], row["solid_fraction"], row["p"], G, nu)
+    return (row["K_affine"] - 2.0 * row["p"] / 3.0) / w["K"]
 
 
 @pytest.fixture(scope="module")
@@ -179,27 +212,40 @@ def test_driver_on_two_ranks_writes_the_rows(driver_runs):
         assert 5.98 < row["Z_no_rattlers"] < 6.8 and row["Z"] <= row["Z_no_rattlers"]
         for m in ("K", "mu"):
             assert 0.0 < row[f"{m}_relaxed"] <= row[f"{m}_affine"]
-        assert 1e7 < row["K_affine"] < 1e10
+        # Walton's closed form with the row's Z, phi, p against the affine K minus its pre-stress
+        # term 2p/3 (pardem.physics.effective_medium): the ratio is <s_c (fn r)^(1/3)> / <fn r>^(1/3)
+        # with the size factor s_c between (R_min / R_v)^2 = 0.898 and (R_max / R_v)^2 = 1.097
+        # (R_v the volume-mean radius) and the Jensen factor J <= 1, above 0.85 (an exponential
+        # force tail gives Gamma(4/3) = 0.893; measured 0.93), times the secant's 1.005 (finite
+        # strain, test_affine_response_against_numpy); measured 0.93
+        ratio = emt_ratio(row)
+        assert 0.898 * 0.85 < ratio < 1.097 * 1.005, ratio
     # FIRE's adaptive step is given back: the moduli ran at the deck's step
     deck = small_deck()
     r_min = min(deck["sample"]["radii"])
     m = deck["material"]
     assert data["dt"] == pytest.approx(deck["run"]["dt_fraction"] * rayleigh_time_step(
         r_min, deck["sample"]["density"], m["shear_modulus"], m["poisson"]), rel=1e-12)
-    # moduli grow with pressure (Hertz: about p^(1/3))
-    assert data["rows"][1]["K_affine"] > data["rows"][0]["K_affine"]
+    # the pressure scaling: K_affine follows Walton's (Z phi)^(2/3) p^(1/3) from 1 to 3 MPa up to the
+    # change of the Jensen factor J (0.929, 0.938, 0.934 at 0.1, 1, 10 MPa in
+    # examples/granular_moduli_scaling.py: 1 % per decade) and of the secant's 3e-3: 2 %
+    r0, r1 = data["rows"]
+    assert emt_ratio(r1) == pytest.approx(emt_ratio(r0), rel=0.02)
+    assert np.log(r1["K_affine"] / r0["K_affine"]) / np.log(r1["p"] / r0["p"]) > 1.0 / 3.0 - 0.02
     assert "p0 [Pa]" in stdout
     json.loads((path / "isotropic.json").read_text(), parse_constant=lambda c: pytest.fail(c))
 
 
-def test_one_and_two_ranks_agree_statistically(driver_runs):
-    a, b = driver_runs[1][0]["rows"], driver_runs[2][0]["rows"]
-    for ra, rb in zip(a, b):
-        assert rb["p"] == pytest.approx(ra["p"], rel=2e-3)
-        assert rb["solid_fraction"] == pytest.approx(ra["solid_fraction"], rel=0.01)
-        assert rb["Z_no_rattlers"] == pytest.approx(ra["Z_no_rattlers"], rel=0.03)
-        for k in ("K_affine", "mu_affine", "K_relaxed", "mu_relaxed"):
-            assert rb[k] == pytest.approx(ra[k], rel=0.1), k
+def test_one_and_two_ranks_agree_bitwise(driver_runs):
+    """Reproducible runs (exact Love-Weber sums and energies, lists in gid order, the gas built on
+    rank 0; issue 16 item 8): every row and every equilibrium measure of 1 and 2 ranks are the
+    same bits, so the gas compression, chaotic as it is, follows the same trajectory."""
+    a, b = driver_runs[1][0], driver_runs[2][0]
+    assert a["rows"] == b["rows"]
+    for da, db in zip(a["details"], b["details"]):
+        for k in ("steps", "kinetic", "unbalanced", "unbalanced_max", "rattlers", "n_contacts", "moduli",
+                  "force_distribution", "cell_length"):
+            assert da[k] == db[k], k
 
 
 def test_bad_pressures_exit_2():

@@ -1,8 +1,9 @@
-"""Walls in the compression test (issue 5, walls): frictional plates hold a tilted anisotropic
-domain that frictionless plates let slide out; the wall friction history migrates between ranks
-and is restored bit for bit from checkpoints."""
+"""Walls in the compression test (issue 5, walls): frictionless plates hold a tilted anisotropic
+domain whose loaded faces are flat; the wall friction history migrates between ranks and is
+restored bit for bit from checkpoints."""
 import filecmp
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -36,15 +37,21 @@ def summary(d):
     return json.loads((d / "summary.json").read_text())
 
 
-def test_friction_keeps_a_shearing_domain_between_the_plates(tmp_path):
+def test_a_tilted_domain_stays_between_frictionless_plates(tmp_path):
+    """The tilted lattice's loaded faces are flat (``domains.ordered``), so frictionless plates hold it
+    while it shears: both plates carry the load (their forces agree within 10 %: the domain's inertia
+    at the end of a quasi-static run), secant and slope moduli agree (10 %), and the modulus is the
+    orthotropic lattice's off-axis value at 30 deg (beam theory, nu = 0) less the staircase side faces'
+    boundary layer, at most 1.75 rows of the 8 across (tests/test_anisotropy_study.py BOUNDARY_ROWS)."""
     driver(1, TILTED + ["--out", str(tmp_path / "free")])
-    driver(1, TILTED + ["--set", "plates.friction=0.5", "--out", str(tmp_path / "held")])
-    free, held = summary(tmp_path / "free"), summary(tmp_path / "held")
-    # frictionless: the domain slides out sideways and the fixed plate ends up unloaded
-    assert abs(free["young_modulus_secant"]) < 0.05 * free["young_modulus"]
-    # with friction the fixed plate carries the load: secant and slope moduli agree
-    assert held["young_modulus_secant"] == pytest.approx(held["young_modulus"], rel=0.1)
-    assert held["young_modulus"] > 0
+    free = summary(tmp_path / "free")
+    assert free["plate_force"] > 0 and free["plate_force_moving"] == pytest.approx(free["plate_force"], rel=0.1)
+    assert free["young_modulus_secant"] == pytest.approx(free["young_modulus"], rel=0.1)
+    EL, ER = math.pi / 4 * 100e6, math.pi / 4 * 5e6                    # pi/4 E r^2, r = 1
+    G = 3 * math.pi / 16 * 100e6 * 5e6 / 105e6                         # LR bonds bending in series
+    c2, s2 = math.cos(math.radians(30.0)) ** 2, math.sin(math.radians(30.0)) ** 2
+    orthotropic = 1.0 / (c2 * c2 / EL + s2 * s2 / ER + s2 * c2 / G)
+    assert abs(free["young_modulus"] / orthotropic - 1.0) < 1.75 / 8
 
 
 @pytest.mark.mpi

@@ -19,6 +19,17 @@ TIMEOUT = 5.0
 LATE = 15.0
 
 
+def rank_pids_printed(job, timeout=60):
+    """{rank: pid} from the loop's ``rank R pid P`` lines (waits until both ranks printed)."""
+    ranks, deadline = {}, time.monotonic() + timeout
+    while len(ranks) < 2 and time.monotonic() < deadline:
+        for line in list(job.stdout):
+            if line.startswith("rank ") and " pid " in line:
+                ranks[int(line.split()[1])] = int(line.split()[3])
+        time.sleep(0.1)
+    return ranks
+
+
 def watchdog_lines(job):
     return [ln for ln in job.stderr.splitlines() if ln.startswith("pardem: error: watchdog:")]
 
@@ -27,10 +38,7 @@ def test_a_stopped_rank_is_named_and_the_job_ends():
     job = Job([LOOP, str(TIMEOUT), "600"])
     try:
         job.wait_for("running", timeout=120)
-        ranks = {}
-        for line in job.stdout:
-            if line.startswith("rank ") and " pid " in line:
-                ranks[int(line.split()[1])] = int(line.split()[3])
+        ranks = rank_pids_printed(job)
         assert sorted(ranks) == [0, 1] and sorted(ranks.values()) == sorted(rank_pids(job.p.pid))
         t0 = time.monotonic()
         subprocess.run(["kill", "-STOP", str(ranks[1])], check=True)
@@ -43,6 +51,39 @@ def test_a_stopped_rank_is_named_and_the_job_ends():
     (line,) = watchdog_lines(job)
     assert "rank 1 silent for" in line and "run.watchdog_seconds = 5" in line, job.stderr
     assert not survivors(list(ranks.values())), "a rank outlived the abort (the stopped one too)"
+
+
+def test_a_rank_stopped_before_the_first_step_is_named_and_the_job_ends():
+    """Rank 1 is stopped while it builds its case (no time step yet) and rank 0 waits for it: the
+    job ends after the start-up limit (``STARTUP_SECONDS``, set to 6 s here) naming rank 1."""
+    startup = 6.0
+    job = Job([LOOP, str(TIMEOUT), "600", "build=600", f"startup={startup}"])
+    try:
+        job.wait_for("building", timeout=120)
+        ranks = rank_pids_printed(job)
+        t0 = time.monotonic()
+        subprocess.run(["kill", "-STOP", str(ranks[1])], check=True)
+        code = job.finish(timeout=startup + LATE + 30)
+        elapsed = time.monotonic() - t0
+    finally:
+        job.kill()
+    assert code == 1, job.stderr
+    assert startup <= elapsed < startup + LATE, elapsed
+    (line,) = watchdog_lines(job)
+    assert "rank 1 silent for" in line and "before the first time step" in line, job.stderr
+    assert not survivors(list(ranks.values()))
+
+
+def test_a_long_build_is_left_alone():
+    """Rank 1 builds for 3 start-up limits (2 s each) while rank 0 waits: it is alive (its
+    watchdog ticks), so no verdict; then the loop runs and the job ends cleanly."""
+    job = Job([LOOP, "1", "2", "build=6", "startup=2"])
+    try:
+        code = job.finish(timeout=120)
+    finally:
+        job.kill()
+    assert code == 0, job.stderr
+    assert not watchdog_lines(job), job.stderr
 
 
 def test_ranks_waiting_on_a_finished_rank_are_aborted():

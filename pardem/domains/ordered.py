@@ -4,14 +4,31 @@ Centres sit on a cubic grid of spacing 2R whose axes are the rows of the LRT fra
 about T = z). The grid passes through the box's lattice-aligned centre site, and every element whose
 centre lies farther than R inside the box (within 1 % of R) is kept, so no sphere sticks out.
 Bonds join face neighbours (grid index differing by one along one axis).
+
+Flat loaded faces (``flat_axis``): a tilted grid cut to a box ends in staircases, and a plate normal
+to ``flat_axis`` would touch one row of spheres per face (two offset lines of contact: a couple that
+turns the domain between frictionless plates). With ``flat_axis`` set, the elements whose centres lie
+within ``flat_depth`` R of the outermost centres along that axis are moved onto the plane of those
+centres, so every plate touches a layer (as the compact builder makes its faces under the plates
+flat). Bonded neighbours moved together end at least ``sqrt(4 - flat_depth^2) R`` apart (their
+centres were 2R apart and differed by less than ``flat_depth R`` along the axis); non-bonded ones at
+least ``sqrt(8 - flat_depth^2) R``. A grid axis along ``flat_axis`` leaves the lattice unchanged
+(only the face layer lies in the band, already on the plane).
 """
 import numpy as np
 
 from pardem.physics.anisotropy import lrt_frame
 
 
-def ordered_lattice(box, radius, tilt_deg=0.0):
-    """Centres [n, 3], bonded pairs [m, 2] and the LRT frame [3, 3] of the lattice in ``box`` [3] (m)."""
+FLAT_DEPTH = 1.0   # depth of the flattened layer [R]: half the untilted face density is moved, bonds >= 1.73 R
+
+
+def ordered_lattice(box, radius, tilt_deg=0.0, flat_axis=None, flat_depth=FLAT_DEPTH):
+    """Centres [n, 3], bonded pairs [m, 2] and the LRT frame [3, 3] of the lattice in ``box`` [3] (m).
+
+    flat_axis : None, or 0, 1, 2: make the two faces normal to that axis flat (module docstring);
+    flat_depth : depth of the flattened layer in radii, in [0, 1.5].
+    """
     box = np.asarray(box, dtype=np.float64)
     R = float(radius)
     step = 2.0 * R
@@ -33,6 +50,14 @@ def ordered_lattice(box, radius, tilt_deg=0.0):
     inside = np.all((pos >= R - tol) & (pos <= box - R + tol), axis=1)
     idx = idx[inside]
     pos = pos[inside]
+    if flat_axis is not None:
+        if not 0.0 <= flat_depth <= 1.5:
+            raise ValueError(f"flat_depth = {flat_depth!r}: expected a depth in [0, 1.5] radii")
+        a = int(flat_axis)
+        lo, hi = pos[:, a].min(), pos[:, a].max()
+        band = flat_depth * R
+        pos[pos[:, a] < lo + band, a] = lo
+        pos[pos[:, a] > hi - band, a] = hi
     # order elements by position along x, then y, then z: gids follow space, which keeps
     # neighbours close in memory and makes slabs along x contiguous ranges of gids
     order = np.lexsort((pos[:, 2], pos[:, 1], pos[:, 0]))

@@ -13,7 +13,8 @@ Writes ``DIR/anisotropy.json``, ``DIR/anisotropy.png`` (with matplotlib), per ca
 bond ratio with ``bond_LR``, ``bond_LT`` (bond ratios), ``LR_mean``, ``LR_std``, ``LT_mean``, ``LT_std``
 (the domain's E_L^D/E_R^D and E_L^D/E_T^D over the realisations), ``E_{L,R,T}_{mean,std}`` [Pa],
 ``n_realisations``, ``n_failed``; ``data["off_axis"][kind][law]`` = one row per tilt with ``xi_deg``,
-``E_mean``, ``E_std``, ``E_hankinson`` [Pa], ``n_failed``, ``statuses``; ``data["meta"]`` = the deck,
+``E_mean``, ``E_std``, ``E_hankinson``, ``E_orthotropic_fit``, ``E_orthotropic_lattice`` (ordered) [Pa]
+(``anisotropy_study.summarise``), ``n_failed``, ``statuses``; ``data["meta"]`` = the deck,
 the plan, ranks, wall time and every case's record (``cases``: moduli per realisation, status,
 diagnostics). A failed measurement is null in the rows and counted in ``n_failed``.
 
@@ -21,8 +22,10 @@ The deck: ``drivers/anisotropy_study.toml`` is the built-in default (used when `
 given; ``--set`` applies on top). Its ``bonds.young`` gives E_R and E_T; E_L = ratio * E_R.
 
 Runtime of the full default (4 laws x 6 ratios x 3 axes, off-axis 0..90 by 10 deg: 108 compressions
-per domain, 8 transits each), measured on the shared 2-core development machine: the ordered lattice
-(1,331 elements) about 2.5 min on one core (2.2 min on 2 ranks); one compact realisation (about 1,480
+per domain, 8 transits each), measured on the shared 2-core development machine before the off-axis
+ordered cases were loaded by their shear wave: the ordered lattice (1,331 elements) about 2.5 min on
+one core (2.2 min on 2 ranks; its off-axis cases now take about 6 times longer each,
+``anisotropy_study.transit_factor``); one compact realisation (about 1,480
 elements, its 3 packings included) about 17 min on one core, 60 % of it the spherical law's cases: W's
 spherical law scales the study's isotropic bond radius ratio too (a scalar is the equal triple under
 every law, ``pardem.physics.anisotropy``), by up to sqrt(3), which makes those bonds up to 15 times
@@ -46,13 +49,13 @@ import numpy as np
 
 import pardem
 from pardem.protocols import anisotropy_study as study
-from pardem.drivers.cli import EXIT_OK, driver_parser, fail_usage, output_dir, run_driver
+from pardem.drivers.cli import (EXIT_OK, driver_parser, fail_usage, option_number, option_numbers, output_dir,
+                                run_driver, study_restart)
 from pardem.protocols.compression import build_case
 from pardem.config import DeckError, load_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.io.paraview import ParaViewWriter
-from pardem.io.records import (RecordLog, header_difference, read_records, read_study_header,
-                               start_study_folder)
+from pardem.io.records import RecordLog, start_study_folder
 from pardem.io.series import SeriesCSV
 from pardem.io.series_h5 import SeriesH5
 from pardem.io.summary import write_json
@@ -91,25 +94,6 @@ def parser(comm=None):
     return p
 
 
-def _number(name, text, lo, hi, integer=False):
-    try:
-        v = int(text) if integer else float(text)
-    except ValueError:
-        v = None
-    if v is None or not np.isfinite(v) or not lo <= v <= hi:
-        kind = "an integer" if integer else "a number"
-        raise DeckError(f"{name} {text}: expected {kind} in [{lo:g}, {hi:g}]")
-    return v
-
-
-def _numbers(name, text, lo, hi):
-    """Distinct numbers of a comma-separated list, each in [lo, hi]."""
-    try:
-        return tuple(dict.fromkeys(_number(name, t, lo, hi) for t in text.split(",")))
-    except DeckError:
-        raise DeckError(f"{name} {text}: expected a comma-separated list of numbers in [{lo:g}, {hi:g}]") from None
-
-
 def _names(name, text, allowed):
     out = []
     for word in text.split(","):
@@ -126,19 +110,19 @@ def make_plan(args, deck):
     laws = study.LAWS if args.laws is None else _names("--laws", args.laws, study.ALL_LAWS)
     quick = study.QUICK_PLAN if args.quick else {}
     if args.ratios is not None:
-        ratios = _numbers("--ratios", args.ratios, 1e-3, 1e4)
+        ratios = option_numbers("--ratios", args.ratios, 1e-3, 1e4)
     else:
         ratios = quick.get("ratios", study.DEFAULT_RATIOS)
-    realisations = (_number("--realisations", args.realisations, 1, 1000, integer=True)
+    realisations = (option_number("--realisations", args.realisations, 1, 1000, integer=True)
                     if args.realisations is not None else quick.get("realisations", 10))
-    xi_step = _number("--xi-step", args.xi_step, 0, 90) if args.xi_step is not None else quick.get("xi_step", 10.0)
+    xi_step = option_number("--xi-step", args.xi_step, 0, 90) if args.xi_step is not None else quick.get("xi_step", 10.0)
     if xi_step and abs(90.0 / xi_step - round(90.0 / xi_step)) > 1e-9:
         raise DeckError(f"--xi-step {args.xi_step}: expected 0 or a step in (0, 90] dividing 90 (e.g. 5, 10, 15, 45)")
-    q_off = (_number("--offaxis-ratio", args.offaxis_ratio, 1e-3, 1e4) if args.offaxis_ratio is not None
+    q_off = (option_number("--offaxis-ratio", args.offaxis_ratio, 1e-3, 1e4) if args.offaxis_ratio is not None
              else max(ratios))
-    transits = (_number("--transits", args.transits, 1, 1000) if args.transits is not None
+    transits = (option_number("--transits", args.transits, 1, 1000) if args.transits is not None
                 else study.DEFAULT_TRANSITS)
-    steps = _number("--steps", args.steps, 1, 1e10, integer=True) if args.steps is not None else None
+    steps = option_number("--steps", args.steps, 1, 1e10, integer=True) if args.steps is not None else None
     E_R, E_T = study.bond_moduli(deck)
     return study.StudyPlan(kinds=kinds, laws=laws, ratios=ratios, E_R=E_R, E_T=E_T,
                            realisations=realisations, xi_step=xi_step, offaxis_ratio=q_off,
@@ -190,7 +174,7 @@ def run(comm, args):
     header = _plain_json({"deck": deck, "plan": asdict(plan)})
     finished = {}
     if args.restart:
-        finished = _finished_cases(comm, args.restart, header)
+        finished = {study.case_id(r): r for r in study_restart(comm, args.restart, header, "an anisotropy study")}
     plot = not args.no_plot
     if plot and comm.is_root:
         try:
@@ -220,7 +204,7 @@ def run(comm, args):
     records = study.run_study(comm, case_comm, deck, plan, progress, packings, finished=finished,
                               on_record=log.append, outputs=_case_outputs(out, case_comm, deck["output"]["vtk_every"]))
     if comm.is_root:
-        data = study.summarise(records, plan)
+        data = study.summarise(records, plan, deck)
         failed = [r for r in records if r["status"] != "ok"]
         data["meta"] = {
             "pardem_version": pardem.__version__, "driver": "anisotropy", "n_ranks": comm.size,
@@ -231,9 +215,12 @@ def run(comm, args):
             "statistics": "mean and sample standard deviation (ddof = 1) over the realisations whose L, R "
                           "and T compressions all succeeded; ratios are taken per realisation",
             "off_axis": "every law at bond ratio offaxis_ratio, compression along x with the LRT frame "
-                        "tilted by xi about z; E_hankinson from the E_mean of xi = 0 and xi = 90",
+                        "tilted by xi about z (ordered: the grid tilts, its faces under the plates made flat); "
+                        "E_hankinson from the E_mean of xi = 0 and xi = 90; E_orthotropic_fit: 1/E = c^4/E0 + "
+                        "s^4/E90 + K s^2 c^2 with K fitted (least squares of 1/E) to the inner angles; E_orthotropic_lattice (ordered): the "
+                        "same with E_L, E_R, K = 1/G_LR of the infinite lattice's beam theory (nu_LR = 0)",
             "status": "ok, or lost_contact (a plate stopped pushing), rotated (the loaded faces did not stay "
-                      "flat: the domain rotated or slid between the frictionless plates), dynamic (the plate "
+                      "normal to the load: the domain turned or slid between the frictionless plates), dynamic (the plate "
                       "forces, or the slopes over the two halves of the fitted phase, still disagree after "
                       "the slower retries), unstable, bad_input (e.g. a packing the builder refused)",
             "deck": deck, "cases": records,
@@ -276,20 +263,6 @@ def _case_outputs(out, case_comm, vtk_every):
 def _plain_json(obj):
     """``obj`` as JSON gives it back (tuples as lists, NaN kept), for comparing with a stored header."""
     return json.loads(json.dumps(obj, sort_keys=True))
-
-
-def _finished_cases(comm, directory, header):
-    """The records of a previous run of the same study in ``directory`` by case id (every rank reads
-    them); exits 2 with one line if ``directory`` is not a study's output or its deck and plan differ."""
-    old = read_study_header(directory)
-    if old is None:
-        fail_usage(comm, f"--restart {directory}: no study.json there: not the output of an anisotropy study")
-    diff = header_difference(old, header, ("plan", "deck"))
-    if diff:
-        part, first, was, now = diff
-        fail_usage(comm, f"--restart {directory}: the study there has another {part} ({first}: "
-                         f"{was!r} there, {now!r} now): repeat its options and deck to continue it")
-    return {study.case_id(r): r for r in read_records(directory)}
 
 
 def _progress(t0):

@@ -29,6 +29,21 @@ deck's domain). ``--restart DIR`` continues a killed or stopped verification of 
 there are not run again (the deck and options must be the same); it writes into a new folder
 (``--out``, default ``DIR-restart-<time>``), which receives every record.
 
+Compact domains (``domain.kind = "compact"``): no closed form exists, so the bonds are calibrated by
+measurement (``pardem.protocols.compact_calibration``): from the closed form times
+``compact.start_factors``, Newton iterations on the logarithms of the bond moduli (L, R, T) and radii,
+with the sensitivity matrix measured from the bonds' energy shares, until the mean over
+``compact.realisations`` packings (seeds ``domain.seed + k``, a task farm over the ranks: realisation k
+on rank k mod n, alone, so the result is the same for any number of ranks) of E_L, E_R, E_T
+(compressions) and G in ``compact.shear_plane`` (simple shear) are all within ``compact.tolerance``
+(2 %) of their targets. Writes ``DIR/calibration_history.json`` (after every iteration: bonds, mean and
+per-realisation moduli, relative errors, sensitivity matrix, step), ``DIR/calibration_history.png``
+(errors [%] and bond parameters against the iteration), ``DIR/calibration.json`` and
+``DIR/compress_calibrated.toml`` (a compact compress deck with the last measured bonds). Exit code 6
+when a target is still missed after ``compact.max_iterations`` measurements. ``--verify``, ``--quick``,
+``--steps`` and ``--restart`` apply to ordered domains only. Runtime: about 10 s per realisation and
+iteration for a cube of 18 radii (716 elements), 4 transits; 4-6 iterations from a far start.
+
 Runtime (2-core development machine, 2 ranks): ``--quick --verify`` on the beech deck (8^3 elements,
 6 runs) about 10 s; ``--verify`` on the 10 mm cube of 21^3 elements a few minutes.
 
@@ -36,7 +51,7 @@ Exit codes: those of ``pardem.drivers.cli`` (0 done and verified, 1 unexpected e
 one line naming the field or option and its allowed values, nothing has run, 3 a verification run
 became unstable, 4 the results could not be written, 5 a run too short to measure its modulus, e.g.
 with ``--steps``), and 6 the verification failed (a modulus off its prediction by more than
-``verify.tolerance``).
+``verify.tolerance``) or the compact calibration did not converge.
 """
 import contextlib
 import copy
@@ -385,6 +400,18 @@ def run(comm, args):
         base = (old or {}).get("deck")
     try:
         deck = load_deck(calib.CALIBRATE_SCHEMA, args.config, args.overrides, base=base)
+        if deck["domain"]["kind"] == "compact":
+            used = [o for o, v in (("--verify", args.verify), ("--quick", args.quick), ("--steps", args.steps is not None),
+                                   ("--restart", args.restart)) if v]
+            if used:
+                raise DeckError(f"{used[0]} applies to domain.kind = \"ordered\": a compact calibration "
+                                f"measures its domain at every iteration (section [compact])")
+            calib.calibrate(calib.Targets.from_deck(deck), deck["bonds"]["relations"])   # the start exists
+    except DeckError as err:
+        fail_usage(comm, str(err))
+    if deck["domain"]["kind"] == "compact":
+        return run_compact(comm, args, deck, t_start)
+    try:
         if args.steps is not None and args.steps < 1:
             raise DeckError(f"--steps {args.steps}: expected an integer >= 1")
         if (args.steps is not None or args.restart) and not args.verify:
@@ -461,6 +488,90 @@ def run(comm, args):
         print(f"wrote {', '.join(os.path.join(out, w) for w in written)} in {report['wall_seconds']:.1f} s",
               flush=True)
     return comm.bcast(code)
+
+
+HISTORY_NAME = "calibration_history.json"
+HISTORY_PLOT = "calibration_history.png"
+
+
+def run_compact(comm, args, deck, t_start):
+    """The compact-domain calibration by measurement (``pardem.protocols.compact_calibration``):
+    writes ``DIR/calibration_history.json`` after every iteration, then ``DIR/calibration.json``,
+    ``DIR/compress_calibrated.toml`` (the last measured bonds) and ``DIR/calibration_history.png``;
+    exit code 6 when a target is still missed after ``compact.max_iterations`` measurements."""
+    from pardem.protocols import compact_calibration as cc
+    out = output_dir(comm, args, "calibrate")
+    say = (lambda text: print(text, flush=True)) if comm.is_root and not args.quiet else (lambda text: None)
+    plan = cc.make_plan(deck)
+    history = []
+    hist_path = os.path.join(out, HISTORY_NAME)
+    if comm.is_root:
+        print(f"pardem {pardem.__version__}: compact-domain calibration by measurement: targets "
+              + ", ".join(f"{n} = {v:.5g} Pa" for n, v in zip(plan.targets, plan.values))
+              + f"; {len(plan.seeds)} realisation(s) (seeds {plan.seeds[0]}..{plan.seeds[-1]}) on {comm.size} "
+                f"rank(s); output {out}", flush=True)
+
+    def on_iteration(entry):
+        history.append(entry)
+        if comm.is_root:
+            write_json(hist_path, {"targets": dict(zip(plan.targets, plan.values)), "history": history})
+    try:
+        result = cc.calibrate_compact(comm, deck, say, on_iteration)
+    except (DeckError, DecompositionError) as err:
+        fail_usage(comm, f"compact calibration: {err}")
+    except InstabilityError as err:
+        if comm.is_root:
+            sys.stderr.write(f"pardem: error: a calibration run became unstable {err}\n")
+        raise SystemExit(EXIT_UNSTABLE)
+    b = result["bonds"]
+    raw = cc.compress_raw(deck, b["young"], b["radius_ratio"])
+    report = {"pardem_version": pardem.__version__, "driver": "calibrate", "n_ranks": comm.size,
+              "kind": "compact", "targets": result["targets"], "relations_of_start": deck["bonds"]["relations"],
+              "compact": result, "deck": os.path.join(out, DECK_NAME), "targets_deck": deck,
+              "wall_seconds": time.perf_counter() - t_start,
+              "note": "bonds: the last measured set (the calibrated one when converged); measured: the mean over "
+                      "the realisations of the quasi-static slope moduli of each test; the sensitivity matrix "
+                      "rows are d ln M / d ln (E_L^mu, E_R^mu, E_T^mu, radii) from the bonds' energy shares "
+                      "(pardem.protocols.compact_calibration)"}
+    code = EXIT_OK if result["converged"] else EXIT_VERIFY_FAILED
+    if comm.is_root:
+        write_json(hist_path, {"targets": result["targets"], "history": result["history"]})
+        header = [f"Compress deck of a compact domain calibrated by measurement (`python -m pardem.drivers.calibrate`, "
+                  f"pardem {pardem.__version__})",
+                  f"from {args.config or 'the built-in targets'}: " + ", ".join(
+                      f"{n} = {v:.6g} Pa" for n, v in result["targets"].items()),
+                  f"mean over seeds {result['seeds']} (domain.seed selects one of them): " + ", ".join(
+                      f"{n} {100 * e:+.2f} %" for n, e in result["relative_error"].items()),
+                  f"{'converged' if result['converged'] else 'NOT converged'} after {result['iterations']} "
+                  f"measurement(s) (tolerance {100 * result['tolerance']:g} %); see {CALIBRATION_JSON}."]
+        with open(os.path.join(out, DECK_NAME), "w") as fh:
+            fh.write(deck_text(raw, header))
+        write_json(os.path.join(out, CALIBRATION_JSON), report)
+        written = [CALIBRATION_JSON, HISTORY_NAME, DECK_NAME]
+        try:
+            from pardem.io.calibration_plot import plot_compact_history
+            plot_compact_history(result, os.path.join(out, HISTORY_PLOT))
+            written.append(HISTORY_PLOT)
+        except ImportError:
+            sys.stderr.write("pardem: note: matplotlib is not installed, so no calibration_history.png "
+                             "(pip install 'pardem[plot]')\n")
+        tol = 100 * result["tolerance"]
+        if result["converged"]:
+            print(f"calibrated: every mean modulus within {tol:g} % of its target after {result['iterations']} "
+                  f"measurement(s): E^mu (L, R, T) = {', '.join(f'{x:.6g}' for x in b['young'])} Pa, r (L, R, T) = "
+                  f"{', '.join(f'{x:.5g}' for x in b['radius_ratio'])}", flush=True)
+        else:
+            missed = [n for n, e in result["relative_error"].items() if not abs(e) <= result["tolerance"]]
+            sys.stderr.write(f"pardem: error: the compact calibration did not converge in {result['iterations']} "
+                             f"measurement(s): {', '.join(missed)} still off by more than {tol:g} % (see "
+                             f"{hist_path}; a shear target far from G ~ E / 2 may be out of reach of a compact "
+                             f"bond network)\n")
+        print(f"wrote {', '.join(os.path.join(out, w) for w in written)} in {report['wall_seconds']:.1f} s",
+              flush=True)
+    return comm.bcast(code)
+
+
+CALIBRATION_JSON = "calibration.json"
 
 
 def _plot(report, path):

@@ -28,8 +28,10 @@ from pardem.config import DeckError, describe, load_deck
 from pardem.engine import stop
 from pardem.engine.errors import InstabilityError, Interrupted, OutputError
 from pardem.io import run_folder
-from pardem.parallel import watchdog
+from pardem.io.records import header_difference, read_records, read_study_header
+from pardem.parallel import layout, watchdog
 from pardem.parallel.communicator import exit_now, report_and_abort
+from pardem.protocols import deck_checks
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_UNSTABLE, EXIT_OUTPUT, EXIT_NOT_MEASURED = 0, 1, 2, 3, 4, 5
 EXIT_SIGNAL = 128              # + the signal number
@@ -226,16 +228,33 @@ def fail_usage(comm, message):
     raise SystemExit(EXIT_USAGE)
 
 
+def agree(comm, problem):
+    """Collective: end every rank with exit 2 if any rank found a ``problem`` (a one-line message,
+    or None). Rank 0 prints the first rank's message (``rank R: ...`` when the ranks disagree, e.g.
+    a memory check on nodes with different free memory), so no rank goes on to wait for one that
+    left."""
+    problems = comm.allgather(problem) if comm is not None and comm.size > 1 else [problem]
+    bad = [(r, m) for r, m in enumerate(problems) if m is not None]
+    if bad:
+        rank, message = bad[0]
+        same = len(bad) == len(problems) and all(m == message for _, m in bad)
+        fail_usage(comm, message if same else f"rank {rank}: {message}")
+
+
 def read_deck(comm, schema, args, base=None):
-    """The checked deck of ``--config`` (or ``base``) and ``--set``; exits 2 on bad input. Its
-    ``run.watchdog_seconds``, if the schema has it, sets the watchdog's limit."""
+    """Collective: the checked deck of ``--config`` (or ``base``) and ``--set``; exits 2 on every
+    rank if any rank finds bad input. Its ``run.watchdog_seconds``, if the schema has it, sets the
+    watchdog's limit."""
+    deck, problem = None, None
+    deck_checks.set_ranks_per_node(layout.ranks_on_node(comm))   # the memory check is per node
     try:
         steps = getattr(args, "steps", None)
         if steps is not None and not 1 <= steps <= MAX_STEPS:
             raise DeckError(f"--steps {steps}: expected an integer from 1 to {MAX_STEPS:.0e}")
         deck = load_deck(schema, args.config, args.overrides, base=base)
     except DeckError as err:
-        fail_usage(comm, str(err))
+        problem = str(err)
+    agree(comm, problem)
     seconds = deck["run"].get("watchdog_seconds") if isinstance(deck.get("run"), dict) else None
     if seconds is not None:
         watchdog.configure(seconds)
@@ -253,3 +272,39 @@ def default_out(comm, driver, restart):
         run = os.path.dirname(parent) if os.path.basename(parent) == "checkpoints" else os.path.splitext(path)[0]
         return f"{run}-restart-{stamp}"
     return os.path.join("runs", f"{driver}-{stamp}")
+
+
+def option_number(name, text, lo, hi, integer=False):
+    """The number of a command-line option ``name`` (text) in [lo, hi]; DeckError naming the
+    option and the range otherwise."""
+    try:
+        v = int(text) if integer else float(text)
+    except ValueError:
+        v = None
+    if v is None or not (v == v and abs(v) != float("inf")) or not lo <= v <= hi:
+        kind = "an integer" if integer else "a number"
+        raise DeckError(f"{name} {text}: expected {kind} in [{lo:g}, {hi:g}]")
+    return v
+
+
+def option_numbers(name, text, lo, hi):
+    """Distinct numbers of a comma-separated option, each in [lo, hi], in the order given."""
+    try:
+        return tuple(dict.fromkeys(option_number(name, t, lo, hi) for t in text.split(",")))
+    except DeckError:
+        raise DeckError(f"{name} {text}: expected a comma-separated list of numbers in [{lo:g}, {hi:g}]") from None
+
+
+def study_restart(comm, directory, header, what):
+    """The records of an earlier run of the same study (a task farm) in ``directory`` (every rank
+    reads them); exits 2 with one line if ``directory`` holds no study of ``what`` (e.g. "a mixture
+    study") or its deck and plan differ from ``header``'s."""
+    old = read_study_header(directory)
+    if old is None:
+        fail_usage(comm, f"--restart {directory}: no study.json there: not the output of {what}")
+    diff = header_difference(old, header, ("plan", "deck"))
+    if diff:
+        part, first, was, now = diff
+        fail_usage(comm, f"--restart {directory}: the study there has another {part} ({first}: "
+                         f"{was!r} there, {now!r} now): repeat its options and deck to continue it")
+    return read_records(directory)

@@ -11,6 +11,9 @@ distribution), then, with friction restored, probed
 by small affine strain increments (isotropic and volume-preserving shear) for the bulk and shear
 moduli, affine (no relaxation) and relaxed. The protocol and the equilibrium criteria are those of
 ``pardem.protocols.isotropic``. Default deck: ``drivers/isotropic_glass.toml`` values (10,000 glass spheres).
+``[domain] dimension = 2`` runs the same protocol in the 2D mode (``pardem.engine.plane``: sphere
+centres in the plane z = 0, stresses per unit area over the mean diameter, solid fraction as disk
+area over cell area).
 
 Writes ``DIR/isotropic.json`` (the summary): ``rows`` (one per pressure: ``p0, p, Z, Z_no_rattlers,
 solid_fraction, K_affine, K_relaxed, mu_affine, mu_relaxed``, SI units; a modulus is null when not
@@ -98,7 +101,8 @@ class Isotropic(GranularDriver):
         deck, sim = run.deck, run.sim
         pressures = sorted(deck["preparation"]["pressures"])
         n = deck["sample"]["n"]
-        run.progress.say(f"pardem {pardem.__version__}: isotropic preparation of {n} spheres on {run.comm.size} "
+        kind = "spheres" if iso.dimension(deck) == 3 else "spheres in the plane z = 0 (2D)"
+        run.progress.say(f"pardem {pardem.__version__}: isotropic preparation of {n} {kind} on {run.comm.size} "
                          f"rank(s), p0 = {', '.join(f'{p:g}' for p in pressures)} Pa, output {run.out}"
                          + (f", restarted from {run.args.restart} (step {int(run.meta['step'])})" if run.meta else ""))
         self.open_series(run)
@@ -109,7 +113,7 @@ class Isotropic(GranularDriver):
             run.series.append({
                 "step": sim.step_count, "time": sim.time, "pressure_index": st["index"],
                 "stage": iso.STAGES.index(st["stage"]), "p0": pressures[st["index"]],
-                "pressure": b["pressure"], "solid_fraction": b["solid_volume"] / sim.cell.volume,
+                "pressure": b["pressure"], "solid_fraction": b["solid_fraction_raw"],
                 "coordination": 2.0 * b["n_contacts"] / b["n_elements"], "kinetic": b["kinetic"],
                 "unbalanced": b["unbalanced"], "unbalanced_max": b["unbalanced_max"], "dt": sim.dt,
                 "cell_rate": float(sim.cell.rate[0])})
@@ -129,7 +133,8 @@ class Isotropic(GranularDriver):
                 "dt": float(run.case.constants["dt"]),
                 "units": {"p0": "Pa", "p": "Pa", "K_affine": "Pa", "K_relaxed": "Pa",
                           "mu_affine": "Pa", "mu_relaxed": "Pa", "Z": "1", "solid_fraction": "1"},
-                "n_elements": deck["sample"]["n"], "series": ["isotropic.csv", "isotropic.h5"]}
+                "n_elements": deck["sample"]["n"], "series": ["isotropic.csv", "isotropic.h5"],
+                "dimension": iso.dimension(deck), "stress_convention": iso.stress_convention(run.case.sim)}
 
     def finish(self, run, summary):
         out, rows, details = run.out, summary["rows"], summary["details"]

@@ -121,6 +121,8 @@ def run_protocol(comm, args, protocol):
     """Run ``protocol`` (a ``ProtocolDriver``) for the parsed ``args``; returns the exit code."""
     with contextlib.ExitStack() as files:      # closes the series files whatever happens
         run = Run(comm=comm, args=args, t_start=time.perf_counter(), files=files)
+        errors = (DeckError, checkpoint.CheckpointError, DecompositionError, *protocol.error_types)
+        problem = fault = None
         try:
             if args.restart:
                 run.meta = protocol.inspect(run)
@@ -128,8 +130,12 @@ def run_protocol(comm, args, protocol):
             checkpoint.parallel_hdf5(run.deck["checkpoint"]["driver"])   # refuse "mpio" without MPI h5py now
             fault = FaultInjection.from_environment()     # a malformed PARDEM_FAULT is bad input
             checkpoint.checkpoint_pause()                 # ... and PARDEM_CHECKPOINT_PAUSE
+        except errors as err:
+            problem = str(err)
+        cli.agree(comm, problem)      # one verdict on every rank before any collective build step
+        try:
             run.case = protocol.restore(run) if run.meta is not None else protocol.build(run)
-        except (DeckError, checkpoint.CheckpointError, DecompositionError, *protocol.error_types) as err:
+        except errors as err:
             cli.fail_usage(comm, str(err))
         run.out = cli.output_dir(comm, args, protocol.name)   # checked, created, locked
         deck, sim = run.deck, run.sim

@@ -93,7 +93,8 @@ def make_bonds(elements, pairs, material, frame, gids=None):
     f_yield = np.where(along_t, material.densification_stress * S, 0.0) if material.densifies \
         else np.zeros(len(L0))
     p = _reference_normal(n)
-    # body-frame copies: R^T v for each end
+    # body-frame copies: R^T v for each end (rot refreshed: a run without bonds skips it per step)
+    e.refresh_rotations()
     to_body = lambda rows, vec: np.einsum("kji,kj->ki", e.rot[rows], vec)
     nb = len(i)
     return Bonds(

@@ -235,7 +235,9 @@ def granular_system(comm, positions, radii, density, law, params, box_lo, box_le
 
     Wraps ``pardem.engine.granular.build`` (same arguments: law ``"hertz_mindlin"`` or ``"linear"``,
     params dict, cell ``box_lo`` [3] and ``box_length`` [3] [m], ``periodic``, ``rate``, ``servo``,
-    ``viscous_damping``, ``velocities``, ...) with dt defaulting to ``dt_fraction`` of the contact
+    ``viscous_damping``, ``velocities``, ``dimension`` (2: the 2D mode of ``pardem.engine.plane``,
+    centres in the plane z = 0, cell periodic in x, y, ``thickness`` of the stress convention), ...)
+    with dt defaulting to ``dt_fraction`` of the contact
     law's critical step and skin to 0.2 mean radius. The ``GranularCase`` constants (for
     ``pardem.engine.granular.write`` checkpoints) are kept as ``sim.case``.
     """

@@ -323,6 +323,18 @@ class Contacts:
                                        float(k_constant), float(k_hertz), acc)
         return float(exact_sum.total(comm, acc, ok)[0])
 
+    def nbytes(self):
+        """Bytes held by this rank's contact list: pair rows, shifts, keys, history, the shifts in
+        metres, the Verlet list's buffers (at capacity), its reference positions and scratch."""
+        arrays = [self.i, self.j, self.shifts, self.keys, self.history, self.vl._pairs,
+                  self.vl._shifts, self.vl.x_build, self.xacc]
+        if self.shift is not None:
+            arrays.append(self.shift)
+        work = self.vl._work
+        arrays += [work.cell_of, work.image, work.cell_rows, work.cell_start, work.xs, work.rs,
+                   work.gs, work.ims]
+        return int(sum(a.nbytes for a in arrays))
+
     def counted_once(self, n_owned):
         """Mask of the pairs this rank writes to files and sums (lower-gid end owned)."""
         return self.i < n_owned

@@ -10,6 +10,11 @@ after a frictionless preparation, or cemented Hertz-Mindlin contacts, whose hist
 the global damping (``set_viscous_damping``); both update the restart constants, so a checkpoint
 written afterwards restarts with them. Cementation itself is ``pardem.engine.cement``.
 
+2D mode (``dimension=2``, ``pardem.engine.plane``): centres in the plane z = 0, a cell periodic
+along x and y only whose z edge is the thickness of the stress convention (``thickness``, default
+the mean diameter), and the ``PlaneConstraint`` fix; the constants record ``dimension`` and
+``thickness`` and ``restore`` puts the fix back.
+
 The contact history lives in the checkpoint as each rank's list (see ``pardem.io.checkpoint``), so
 a restart on the same number of ranks continues bit for bit; on another number of ranks the lists
 are rebuilt and the histories found again by their gid pairs.
@@ -20,6 +25,7 @@ import numpy as np
 
 from pardem.engine import snapshot
 from pardem.engine.contacts import Contacts
+from pardem.engine.plane import PlaneConstraint, check_dimension, in_plane, planar
 from pardem.io import checkpoint
 from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs
@@ -72,17 +78,55 @@ def set_viscous_damping(case, rate):
     case.constants["viscous_damping"] = float(rate)
 
 
+def plane_cell(box_lo, box_length, periodic, radii, thickness=None):
+    """The 2D cell's ``(lo [3], length [3], periodic [3])``: x, y from ``box_lo``, ``box_length``,
+    ``periodic`` (2 or 3 entries; z entries ignored), z not periodic, ``length[2]`` the thickness
+    [m] (default the mean diameter ``2 <R>``) and ``lo[2] = -t / 2`` (the plane z = 0 in the middle)."""
+    t = 2.0 * float(np.mean(radii)) if thickness is None else float(thickness)
+    if not (np.isfinite(t) and t > 0.0):
+        raise ValueError(f"thickness must be a finite length > 0 [m], got {thickness!r}")
+    lo = np.asarray(box_lo, dtype=np.float64)
+    edge = np.asarray(box_length, dtype=np.float64)
+    per = np.asarray(periodic, dtype=bool)
+    for name, a in (("box_lo", lo), ("box_length", edge), ("periodic", per)):
+        if a.shape not in ((2,), (3,)):
+            raise ValueError(f"{name} must hold 2 or 3 entries in 2D, got shape {a.shape}")
+    return (np.array([lo[0], lo[1], -0.5 * t]), np.array([edge[0], edge[1], t]),
+            np.array([per[0], per[1], False]))
+
+
 def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, skin,
           periodic=(True, True, True), rate=(0.0, 0.0, 0.0), servo=None, viscous_damping=0.0,
-          velocities=None, angular_velocities=None, slab_axis=0, balance_every=0):
+          velocities=None, angular_velocities=None, slab_axis=0, balance_every=0, dimension=3,
+          thickness=None):
     """A granular case from global centres [n, 3] and radii [n] (every rank passes the same).
 
     density [kg/m^3]; law, params: the contact law and its parameters (dict); box_lo [3],
     box_length [3] [m]: the periodic cell; dt [s]; skin [m]; rate [3] [1/s], servo
     ``(p0, gain, max_rate)``: the cell's deformation; velocities [n, 3] [m/s] optional.
     Rank r keeps its slab's elements (slabs along ``slab_axis``, balanced counts).
+
+    ``dimension=2``: the 2D mode (``pardem.engine.plane``): centres [n, 2] or [n, 3] with z = 0;
+    the cell is x, y of ``box_lo``, ``box_length``, ``periodic`` with the thickness ``thickness``
+    [m] (default the mean diameter) along z (``plane_cell``); ``rate[2]`` must be 0; the
+    out-of-plane components of ``velocities`` (z) and ``angular_velocities`` (x, y) are dropped;
+    ``slab_axis`` 0 or 1.
     """
-    pos = np.asarray(positions, dtype=np.float64)
+    dimension = check_dimension(dimension)
+    if dimension == 2:
+        pos = planar(positions)
+        n = len(pos)
+        radii = np.broadcast_to(np.asarray(radii, dtype=np.float64), (n,))
+        box_lo, box_length, periodic = plane_cell(box_lo, box_length, periodic, radii, thickness)
+        rate = np.asarray(rate, dtype=np.float64)
+        if rate.shape != (3,) or rate[2] != 0.0:
+            raise ValueError(f"rate must be 3 rates [1/s] with rate[2] = 0 in 2D, got {rate.tolist()}")
+        if slab_axis not in (0, 1):
+            raise ValueError(f"slab_axis = {slab_axis!r}: expected 0 (x) or 1 (y) in 2D (the grains lie "
+                             "in the plane z = 0)")
+        velocities = in_plane(velocities, (2,), "velocities")
+        angular_velocities = in_plane(angular_velocities, (0, 1), "angular_velocities")
+    pos = np.asarray(positions if dimension == 3 else pos, dtype=np.float64)
     per = np.asarray(periodic, dtype=bool)
     lo0, edge = np.asarray(box_lo, dtype=np.float64), np.asarray(box_length, dtype=np.float64)
     pos = np.where(per, lo0 + np.mod(pos - lo0, edge), pos)   # slabs are cut in the cell's frame
@@ -94,12 +138,14 @@ def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, 
         raise ValueError(f"dt = {dt:.6g} s: expected a value in (0, {dt_c:.6g}] s, the critical time "
                          f"step of the {law} contacts of these spheres (take 0.1-0.3 of it)")
     gids = np.arange(n, dtype=np.int64)
-    cell = PeriodicCell(box_lo, box_length, periodic, rate, servo)
+    cell = PeriodicCell(box_lo, box_length, periodic, rate, servo, dimension=dimension)
     reach = 2.0 * float(radii.max()) + float(skin)
     constants = {"density": float(density), "law": law, "params": dict(params), "dt": float(dt),
                  "skin": float(skin), "reach": reach, "slab_axis": int(slab_axis),
                  "viscous_damping": float(viscous_damping), "n_elements": n,
                  "balance_every": int(balance_every), "dt_critical": dt_c}
+    if dimension == 2:
+        constants.update(dimension=2, thickness=cell.thickness)
     contacts = Contacts(LAWS[law], prm, skin, cell, reach=reach)
     domain = None
     if comm.size > 1:
@@ -123,6 +169,8 @@ def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, 
         contacts.rebuild(e, bonds)
     sim = Simulation(comm, e, bonds, None, dt, domain=domain, contacts=contacts, cell=cell,
                      viscous_damping=viscous_damping)
+    if dimension == 2:
+        sim.fixes.append(PlaneConstraint(0.0))
     return GranularCase(sim=sim, constants=constants)
 
 
@@ -147,6 +195,9 @@ def restore(comm, path, slab_axis=None, meta=None):
     c = meta["constants"]
     cell = snapshot.cell_of(meta)
     if slab_axis is not None:
+        if int(c.get("dimension", 3)) == 2 and int(slab_axis) not in (0, 1):
+            raise ValueError(f"slab_axis = {slab_axis!r}: expected 0 (x) or 1 (y) for a 2D checkpoint "
+                             "(the grains lie in the plane z = 0)")
         c["slab_axis"] = int(slab_axis)
     contacts = Contacts(LAWS[c["law"]], law_params(c["law"], c["params"]), c["skin"], cell,
                         reach=c["reach"])
@@ -155,5 +206,7 @@ def restore(comm, path, slab_axis=None, meta=None):
                                                            balance_every=c["balance_every"], cell=cell))
     sim = Simulation(comm, parts.elements, parts.bonds, None, c["dt"], domain=parts.domain,
                      contacts=contacts, cell=cell, viscous_damping=c["viscous_damping"])
+    if int(c.get("dimension", 3)) == 2:
+        sim.fixes.append(PlaneConstraint(0.0))
     snapshot.resume(sim, meta, parts.same)
     return GranularCase(sim=sim, constants=c)

@@ -22,6 +22,13 @@ imposed rate (negative: compression), and each lateral axis ``b`` servos its own
 confining pressure, ``g_b = gain (-sigma_bb - pc)`` capped by ``max_rate``, so the lateral stress is
 held at ``sigma_bb = -pc`` (tension positive).
 
+2D cells (``dimension = 2``, the 2D mode of ``pardem.engine.plane``): the grains lie in the plane
+z = 0; the cell is never periodic along z and never deforms along it, and its z edge is the
+thickness ``t`` of the 2D stress convention (the mean diameter by default), so ``volume = L_x L_y t``
+and the Love-Weber stress ``sum d f / V`` is the stress per unit area of the plane over ``t`` [Pa].
+The pressure of the servo is the in-plane mean stress ``p = -(s_xx + s_yy) / 2``, and the
+triaxial servo becomes biaxial (axis x or y imposed, the other in-plane axis servoed).
+
 The cell is pure bookkeeping over arrays; the reductions it needs (the global stress) are done by
 the caller.
 """
@@ -53,13 +60,20 @@ class PeriodicCell:
     ``rate`` [3] [1/s]: imposed diagonal strain rate (along periodic axes only); ``servo``: None,
     ``(p0 [Pa], gain [1/(Pa s)], max_rate [1/s])`` for an isotropic pressure control, or the dict of
     ``triaxial_servo`` (axial rate imposed, lateral stresses held at ``-pc``).
+    ``dimension``: 3, or 2 for the 2D mode (module docstring: z not periodic, ``length[2]`` the
+    thickness of the stress convention).
     """
 
-    def __init__(self, lo, length, periodic, rate=(0.0, 0.0, 0.0), servo=None):
+    def __init__(self, lo, length, periodic, rate=(0.0, 0.0, 0.0), servo=None, dimension=3):
         self.lo = np.asarray(lo, dtype=np.float64).copy()
         self.length = np.asarray(length, dtype=np.float64).copy()
         self.periodic = np.array([bool(p) for p in periodic], dtype=np.bool_)
         self.rate = np.asarray(rate, dtype=np.float64).copy()
+        if dimension not in (2, 3) or isinstance(dimension, bool):
+            raise ValueError(f"cell dimension = {dimension!r}: expected 2 or 3")
+        self.dimension = int(dimension)
+        if self.dimension == 2 and self.periodic[2]:
+            raise ValueError("a 2D cell is not periodic along z (the grains lie in the plane z = 0)")
         if np.any(self.rate[~self.periodic] != 0.0):
             raise ValueError("cell.rate: a strain rate needs a periodic axis (non-periodic axes take 0)")
         if not np.all(self.length > 0.0):
@@ -68,7 +82,12 @@ class PeriodicCell:
             self.servo = None
         elif isinstance(servo, dict):
             self.servo = self.triaxial_servo(**{k: v for k, v in servo.items() if k != "kind"})
-            if not np.all(self.periodic):
+            if self.dimension == 2:
+                if self.servo["axis"] == 2:
+                    raise ValueError("a biaxial (2D) servo loads axis 0 or 1, not z")
+                if not np.all(self.periodic[:2]):
+                    raise ValueError("a biaxial (2D) servo needs a cell periodic along x and y")
+            elif not np.all(self.periodic):
                 raise ValueError("a triaxial servo needs a cell periodic along every axis")
         else:
             self.servo = tuple(float(v) for v in servo)
@@ -82,7 +101,26 @@ class PeriodicCell:
 
     @property
     def volume(self):
+        """Cell volume [m^3]: ``L_x L_y L_z``; in 2D ``L_x L_y t`` (``t = length[2]``, the thickness)."""
         return float(np.prod(self.length))
+
+    @property
+    def area(self):
+        """In-plane area ``L_x L_y`` [m^2] (the 2D cell's measure)."""
+        return float(self.length[0] * self.length[1])
+
+    @property
+    def thickness(self):
+        """The 2D stress convention's thickness ``t = length[2]`` [m] (2D cells)."""
+        return float(self.length[2])
+
+    def pressure(self, stress):
+        """Mean compressive stress [Pa] of a stress tensor [3, 3] (tension positive):
+        ``-trace / 3`` in 3D, ``-(s_xx + s_yy) / 2`` in 2D."""
+        s = np.asarray(stress)
+        if self.dimension == 2:
+            return -(float(s[0][0]) + float(s[1][1])) / 2.0
+        return -float(np.trace(s)) / 3.0
 
     @property
     def deforming(self):
@@ -136,8 +174,8 @@ class PeriodicCell:
             return
         if isinstance(self.servo, dict):
             sv = self.servo
-            rate = np.empty(3)
-            for b in range(3):
+            rate = np.zeros(3)
+            for b in range(self.dimension):
                 if b == sv["axis"]:
                     rate[b] = sv["axial_rate"]
                 else:
@@ -148,7 +186,7 @@ class PeriodicCell:
         p0, gain, max_rate = self.servo
         if self.servo_stiffness > 0.0 and dt > 0.0:
             gain = min(gain, 0.5 / (self.servo_stiffness * dt))
-        p = -float(np.trace(stress)) / 3.0
+        p = self.pressure(stress)
         g = float(np.clip(gain * (p - p0), -max_rate, max_rate))
         self.rate = np.where(self.periodic, g, 0.0)
 
@@ -159,11 +197,12 @@ class PeriodicCell:
                 "servo": (None if self.servo is None else dict(self.servo)
                           if isinstance(self.servo, dict) else list(self.servo)),
                 "strain": self.strain.tolist(), "strain_since_build": self.strain_since_build,
-                "servo_stiffness": self.servo_stiffness}
+                "servo_stiffness": self.servo_stiffness, "dimension": self.dimension}
 
     @classmethod
     def from_state(cls, s):
-        cell = cls(s["lo"], s["length"], s["periodic"], s["rate"], s["servo"])
+        cell = cls(s["lo"], s["length"], s["periodic"], s["rate"], s["servo"],
+                   dimension=int(s.get("dimension", 3)))
         cell.strain = np.asarray(s["strain"], dtype=np.float64)
         cell.strain_since_build = float(s["strain_since_build"])
         cell.servo_stiffness = float(s.get("servo_stiffness", 0.0))

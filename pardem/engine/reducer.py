@@ -14,6 +14,7 @@ from numba import njit
 
 from pardem.engine.state import FLAG_NEAR_PLATE
 from pardem.parallel import exact_sum
+from pardem.physics.structure import lens_area
 
 
 @njit(cache=True, error_model="numpy")
@@ -132,9 +133,10 @@ def overlap_volume(x, radius, pi, pj, shift, periodic, n_owned):
 
 
 @njit(cache=True, error_model="numpy")
-def overlap_volumes(x, radius, pi, pj, shift, periodic, n_owned):
+def overlap_volumes(x, radius, pi, pj, shift, periodic, n_owned, dim=3):
     """The lens volume [m^3] of each pair [n_pairs] (``overlap_volume``'s terms; 0 for the pairs
-    not overlapping or whose ``i`` is a ghost), for an exact sum."""
+    not overlapping or whose ``i`` is a ghost), for an exact sum; ``dim = 2``: the lens areas [m^2]
+    of the disks (``pardem.physics.structure.lens_area``)."""
     out = np.zeros(pi.shape[0])
     for p in range(pi.shape[0]):
         i = pi[p]
@@ -153,6 +155,9 @@ def overlap_volumes(x, radius, pi, pj, shift, periodic, n_owned):
         if d2 >= s * s:
             continue
         d = np.sqrt(d2)
+        if dim == 2:
+            out[p] = lens_area(r1, r2, d)
+            continue
         h = s - d
         out[p] = np.pi * h * h * (d2 + 2.0 * d * s - 3.0 * (r1 - r2) ** 2) / (12.0 * d)
     return out
@@ -162,20 +167,22 @@ def granular_measures(sim):
     """Global state of a granular ``Simulation`` in a periodic cell (collective). docs/physics.md section 11.
 
     Returns a dict: ``stress`` [3, 3] [Pa], the Love-Weber stress of the contacts of the last force
-    evaluation, tension positive; ``pressure`` = -trace / 3 [Pa] (compression positive); ``Z`` =
-    2 N_c / N, the coordination number; ``solid_fraction``: sphere volumes minus the overlap
-    lenses, over the cell volume; ``n_contacts``, ``kinetic_energy`` [J], ``contact_energy`` [J].
+    evaluation, tension positive; ``pressure`` = -trace / 3 [Pa] (compression positive; 2D:
+    -(s_xx + s_yy) / 2); ``Z`` = 2 N_c / N, the coordination number; ``solid_fraction``: sphere
+    volumes minus the overlap lenses, over the cell volume (2D: disk areas minus the lens areas
+    over L_x L_y); ``n_contacts``, ``kinetic_energy`` [J], ``contact_energy`` [J].
     """
     e, c = sim.elements, sim.contacts
     n = e.n_owned
-    spheres = float(np.sum(4.0 / 3.0 * np.pi * e.radius[:n] ** 3))
+    dim = getattr(sim.cell, "dimension", 3)
+    vols = np.pi * e.radius[:n] ** 2 if dim == 2 else 4.0 / 3.0 * np.pi * e.radius[:n] ** 3
+    spheres = float(np.sum(vols))
     shift = c.shift if c.shift is not None else np.zeros((0, 3))
     kin = sim.kinetic_energy()
     if c.reproducible:
         # the same bits on any number of ranks: exact sums of the per-element and per-pair terms
         sums, energy = c.global_sums(sim.comm)
-        lens = overlap_volumes(e.x, e.radius, c.i, c.j, shift, c.shift is not None, n)
-        vols = 4.0 / 3.0 * np.pi * e.radius[:n] ** 3
+        lens = overlap_volumes(e.x, e.radius, c.i, c.j, shift, c.shift is not None, n, dim)
         cols = np.zeros((max(n, len(lens)), 2))
         cols[:n, 0] = vols
         cols[:len(lens), 1] = lens
@@ -183,10 +190,14 @@ def granular_measures(sim):
         counts = sim.comm.sum(np.array([c.n_touching, n], dtype=np.float64))   # integers: exact
         g = np.concatenate([sums, [counts[0], vl[0], vl[1], counts[1], energy]])
     else:
-        lens = overlap_volume(e.x, e.radius, c.i, c.j, shift, c.shift is not None, n)
+        lens = float(np.sum(overlap_volumes(e.x, e.radius, c.i, c.j, shift, c.shift is not None, n, dim))) \
+            if dim == 2 else overlap_volume(e.x, e.radius, c.i, c.j, shift, c.shift is not None, n)
         g = sim.comm.sum(np.concatenate([c.sums, [spheres, lens, n, sim.contact_energy]]))
     stress = g[:9].reshape(3, 3) / sim.cell.volume
-    return {"stress": stress, "pressure": float(-np.trace(stress) / 3.0),
+    # 2D: the in-plane pressure -(s_xx + s_yy) / 2 and disk areas over L_x L_y (PeriodicCell)
+    pressure = sim.cell.pressure(stress) if dim == 2 else float(-np.trace(stress) / 3.0)
+    space = sim.cell.area if dim == 2 else sim.cell.volume
+    return {"stress": stress, "pressure": float(pressure),
             "Z": float(2.0 * g[9] / g[12]), "n_contacts": int(round(g[9])),
-            "solid_fraction": float((g[10] - g[11]) / sim.cell.volume),
+            "solid_fraction": float((g[10] - g[11]) / space),
             "kinetic_energy": kin, "contact_energy": float(g[13])}

@@ -160,7 +160,10 @@ class Simulation:
         """
         t0 = _time.perf_counter()
         e = self.elements
-        kick_drift(e.x, e.v, e.w, e.q, e.rot, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned)
+        # the rotation matrices serve the bonds only (bonding.make_bonds refreshes them itself)
+        with_rot = self.bonds is not None and self.bonds.n > 0
+        kick_drift(e.x, e.v, e.w, e.q, e.rot, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned,
+                   with_rot)
         if self.cell is not None:
             factor = self.cell.deform(e, self.dt, self._reference_positions())
             if factor is not None and self.domain is not None:

@@ -244,7 +244,11 @@ def system_attrs(sim):
     law = None
     if c is not None:
         law = next(name for name, row in LAWS.items() if c.law is row)
-    return {"kind": "system", "dt": sim.dt, "max_speed": float(np.sqrt(sim.max_speed2)),
+    from pardem.engine.plane import plane_of
+    plane = plane_of(sim)
+    return {"kind": "system", "dt": sim.dt,
+            # the 2D mode (pardem.engine.plane): its plane constraint is part of the system
+            "dimension": 2 if plane is not None else 3, "plane_z0": plane.z0 if plane is not None else 0.0, "max_speed": float(np.sqrt(sim.max_speed2)),
             "check_every": sim.check_every, "viscous_damping": sim.viscous_damping,
             "slab_axis": d.slabs.axis if d is not None else 0,
             "bonds": (sim.bonds if sim.bonds is not None else Bonds.empty()).flags(),
@@ -261,7 +265,8 @@ def system_attrs(sim):
 def write(sim, path, attrs=None, mode="auto"):
     """Checkpoint ``sim`` (built with ``pardem.bonded_system`` / ``granular_system``, walls included)
     to ``path`` (collective). Fixes and operations are Python objects of the script: add them again
-    after ``load`` (as a LAMMPS restart re-reads its fixes from the input script)."""
+    after ``load`` (as a LAMMPS restart re-reads its fixes from the input script); the 2D mode's
+    plane constraint (``pardem.engine.plane``) is part of the system and comes back by itself."""
     system = system_attrs(sim)
     groups, state = payload(sim, {"deck": {"kind": "system"}, "constants": system,
                                   "slab_axis": system["slab_axis"], **(attrs or {})})
@@ -304,6 +309,9 @@ def load(comm, path, slab_axis=None):
     sim = Simulation(comm, parts.elements, parts.bonds, walls, s["dt"], max_speed=s["max_speed"],
                      check_every=s["check_every"], domain=parts.domain, contacts=contacts, cell=cell,
                      viscous_damping=s["viscous_damping"])
+    if int(s.get("dimension", 3)) == 2:
+        from pardem.engine.plane import PlaneConstraint
+        sim.fixes.append(PlaneConstraint(s.get("plane_z0", 0.0)))
     resume(sim, meta, parts.same)
     if walls is not None:
         walls.move_to(sim.time)

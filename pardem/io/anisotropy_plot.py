@@ -3,7 +3,8 @@
 
 Anisotropy study: one row per domain kind: E_L^D/E_R^D and E_L^D/E_T^D against the bond ratios (one line per law,
 error bars = standard deviation over the realisations, dotted: domain ratio = bond ratio), and the
-off-axis modulus E(xi) with Hankinson's prediction from E(0) and E(90).
+off-axis modulus E(xi) [MPa] with Hankinson's prediction from E(0) and E(90), the orthotropic curve
+through E(0), E(90) with K fitted to the other angles and, for the ordered lattice, the infinite lattice's orthotropic curve.
 """
 import numpy as np
 
@@ -48,14 +49,21 @@ def plot_study(data, plan, path):
                 ax.errorbar(xi, _column(rows, "E_mean") / 1e6, yerr=_column(rows, "E_std") / 1e6, marker="o",
                             ms=3.5, lw=0, elinewidth=1.0, capsize=2, color=c, label=f"{law}")
                 ax.plot(xi, _column(rows, "E_hankinson") / 1e6, color=c, ls="--", lw=1.0)
+                if any(r.get("E_orthotropic_fit") is not None for r in rows):
+                    ax.plot(xi, _column(rows, "E_orthotropic_fit") / 1e6, color=c, ls=":", lw=1.0)
                 bad = np.array([r["E_mean"] is None for r in rows])
                 if bad.any():    # failed measurements: a cross on the Hankinson curve
                     ax.plot(xi[bad], _column(rows, "E_hankinson")[bad] / 1e6, "x", color=c, ms=7)
+            first = next(iter(off.get(kind, {}).values()), [])
+            if any(r.get("E_orthotropic_lattice") is not None for r in first):
+                ax.plot(_column(first, "xi_deg"), _column(first, "E_orthotropic_lattice") / 1e6, color="k",
+                        lw=1.4, alpha=0.6, label="orthotropic, infinite lattice")
             ax.set_xlabel(r"tilt $\xi$ of L from the loading axis [deg]")
             ax.set_ylabel(r"$E(\xi)$ [MPa]")
             ax.set_yscale("log")
-            ax.set_title(f"{kind}: off-axis at $E_L/E_R$ = {plan.offaxis_ratio:g}\n"
-                         f"dashed: Hankinson from E(0), E(90); x: failed", fontsize="medium")
+            ax.set_title(f"{kind}: off-axis at $E_L/E_R$ = {plan.offaxis_ratio:g}\ndashed: Hankinson, "
+                         f"dotted: orthotropic fit; x: failed",
+                         fontsize="small")
             ax.grid(True, lw=0.4, alpha=0.5)
             ax.legend(fontsize="small")
     fig.savefig(path, dpi=110)

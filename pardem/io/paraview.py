@@ -45,6 +45,9 @@ Opening in ParaView:
    to 1 in the glyph-type properties, or use Scale Factor = 2, for true-size spheres);
    Glyph Mode = All Points; Apply. Colour by ``displacement`` or ``velocity``.
    Ghost duplicates (``vtkGhostType`` = 1) are not glyphed.
+
+2D runs (``pardem.engine.plane``) need nothing else: the points lie at z = 0 and the velocities have
+no z component; view along z (-Z button) and glyph spheres, or Glyph Type = 2D Glyph, Circle, filled.
 """
 import os
 import sys

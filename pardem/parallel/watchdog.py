@@ -12,10 +12,13 @@ that waits on a silent rank) and aborts the job, with one line naming the rank(s
   wait on each other (a deadlock), or one operation lasts longer than the watchdog allows.
 
 A rank is armed from its first ``beat()`` (the time loop, ``Simulation.run``); once armed it also
-expects signs of life from the ranks that have not reported a step yet. The build of a case
-before any rank's first step is not watched (a long packing build may hold the GIL, and a rank
-that has not started cannot be told from a slow one). ``pause()`` (end of ``Simulation.run``) says this
-rank is not expected to beat until its next step; ``stop()`` that it is finished.
+expects signs of life from the ranks that have not reported a step yet. Before any rank's first
+step (reading the deck, building the case) only signs of life are watched, with a limit of
+``STARTUP_SECONDS`` (or the deck's, if longer): a long build may hold the GIL in one compiled call
+(a packing, a Numba compilation) and stop its thread's ticks for a while, but a rank stopped or
+lost during the build still ends the job.
+``pause()`` (end of ``Simulation.run``) says this rank is not expected to beat until its next step;
+``stop()`` that it is finished.
 
 Why messages, not heartbeat files or a one-sided window: only this layer speaks MPI and only
 ``pardem.io`` opens files; messages need no shared file system (NFS caches mtimes for up to a
@@ -34,6 +37,7 @@ import time
 import numpy as np
 
 DEFAULT_SECONDS = 120.0
+STARTUP_SECONDS = 600.0     # the limit on signs of life before any rank's first step [s]
 EXIT_CODE = 1               # the drivers' "unexpected error: all ranks aborted"
 EXIT_FALLBACK_SECONDS = 10.0
 _TAG = 7
@@ -170,14 +174,16 @@ class Watchdog:
         # once this rank runs its time loop, every unfinished rank must at least show signs of life
         # (one stopped before it could report its first step is silent too)
         armed = state[me] in (_ARMED, _PAUSED)
-        watched = [r for r in range(self.comm.size)
-                   if state[r] in (_ARMED, _PAUSED) or (armed and state[r] == _WAITING)]
-        silent = [r for r in watched if r != me and now - tick_at[r] > t]
+        started = armed or any(state[r] in (_ARMED, _PAUSED) for r in range(self.comm.size))
+        limit = t if started else max(t, STARTUP_SECONDS)
+        watched = [r for r in range(self.comm.size) if state[r] != _FINISHED]
+        silent = [r for r in watched if r != me and now - tick_at[r] > limit]
         if silent:
             age = max(now - tick_at[r] for r in silent)
+            when = "" if started else f" before the first time step (limit {limit:g} s while the case is built)"
             return (silent, []), (
-                f"pardem: error: watchdog: {_ranks(silent)} silent for {age:.0f} s (no sign of life: process "
-                f"stopped, frozen or lost; limit run.watchdog_seconds = {t:g}); aborting all ranks")
+                f"pardem: error: watchdog: {_ranks(silent)} silent for {age:.0f} s{when} (no sign of life: "
+                f"process stopped, frozen or lost; limit run.watchdog_seconds = {t:g}); aborting all ranks")
         if any(r != me and now - tick_at[r] > max(3 * self.period, 2.0) for r in watched):
             return None     # a rank is falling silent: its verdict follows, it explains the stall
         looping = [r for r in range(self.comm.size) if state[r] == _ARMED]

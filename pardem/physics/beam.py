@@ -21,8 +21,17 @@ moments, ``M1 + M2 + L n x F2 = 0`` at any stretch, and agrees with the textbook
 
 Damping: every generalised displacement is replaced by ``d + tau * d'`` with the rates of the same
 measures (``dL' = (v2 - v1).n``; bending ``th_k' = (w_k - w_chord)`` normal to ``n`` with
-``w_chord = n x (v2 - v1) / L``; twist ``tw' = (w2 - w1).n``) and ``tau = c / k = 2 zeta sqrt(m*/k)``
-per mode. The damping forces therefore balance like the elastic ones and vanish for any rigid motion.
+``w_chord = n x (v2 - v1) / L``; twist ``tw' = (w2 - w1).n``) and ``tau = c / k = 2 zeta sqrt(m/k)``
+per mode, ``k`` and ``m`` that mode's stiffness and inertia (axial: ``ka``, ``m*``; twist: ``kt``,
+``I*``). The two end rotations ``th1``, ``th2`` carry two coupled modes of the free pair, bending
+(the ends turning opposite ways, no shear force) and transverse (the same way, carrying the shear
+force); they are damped together by ``th_k + sum_l D_kl th_l'`` with the Rayleigh matrix of
+``rotation_damping``, which gives both the ratio ``zeta`` for any pair of elements. (One constant
+``tau_b`` for both, as before, gave the transverse mode ``2.05 zeta`` for touching identical spheres
+and, for R2 = 1.5 R1, 0.69 and 2.10 zeta; ``tests/test_damping_modes.py``.) The damping forces
+balance like the elastic ones and vanish for any rigid motion.
+
+Rupture (``rupture_mode``) tests the elastic axial and shear forces, damping excluded.
 """
 import numpy as np
 from numba import njit
@@ -85,23 +94,56 @@ def densified_extension(dL, l0, ka, f_yield, p0, plastic, b):
     return ext
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def rotation_damping(tau_a, ka, kb, l0, m1, m2, i1, i2):
+    """Damping of the two end rotations of a bond: ``(D11, D12, D21, D22)`` [s], the section
+    rotations being damped as ``th_k + sum_l D_kl th_l'`` (the same for both bending planes).
+
+    The two rotation modes of the free pair (ends turning opposite ways: bending; the same way:
+    transverse, carrying the shear force) have, on ``(th1, th2)`` and with zero angular momentum,
+    the stiffness ``K = (2 kb / L0) [[2, 1], [1, 2]]`` and the inertia
+    ``M = diag(I1, I2) - [I1, I2]^T [I1, I2] / J``, ``J = I1 + I2 + m* L0^2``. Rayleigh damping
+    ``C = beta K + alpha M`` with ``beta = 2 zeta / (w1 + w2)``, ``alpha = 2 zeta w1 w2 / (w1 + w2)``
+    (``w1, w2`` the two modes' frequencies) gives both modes the ratio ``zeta`` exactly, for any
+    pair; ``D = K^-1 C = beta + alpha K^-1 M``. ``2 zeta = tau_a sqrt(ka / m*)``.
+    """
+    m_red = m1 * m2 / (m1 + m2)
+    two_zeta = tau_a * np.sqrt(ka / m_red)
+    inv_j = 1.0 / (i1 + i2 + m_red * l0 * l0)
+    M11 = i1 - i1 * i1 * inv_j
+    M22 = i2 - i2 * i2 * inv_j
+    M12 = -i1 * i2 * inv_j
+    det_m = i1 * i2 * m_red * l0 * l0 * inv_j
+    k0 = 2.0 * kb / l0
+    w_sq_sum = 2.0 * k0 * (i1 + i2 - (i1 * i1 - i1 * i2 + i2 * i2) * inv_j) / det_m
+    w_prod = k0 * np.sqrt(3.0 / det_m)
+    w_sum = np.sqrt(w_sq_sum + 2.0 * w_prod)
+    beta = two_zeta / w_sum
+    c = two_zeta * w_prod / w_sum / (3.0 * k0)     # alpha / (3 k0): K^-1 = [[2, -1], [-1, 2]] / (3 k0)
+    return (beta + c * (2.0 * M11 - M12), c * (2.0 * M12 - M22),
+            c * (2.0 * M12 - M11), beta + c * (2.0 * M22 - M12))
+
+
 # layout of ``beam_bond``'s ``out`` row (module constants: Numba compiles them in)
 OUT_FORCE_1 = 0     # [3] force on end 1 [N] (end 2 gets its opposite)
 OUT_MOMENT_1 = 3    # [3] moment on end 1 [N m]
 OUT_MOMENT_2 = 6    # [3] moment on end 2 [N m]
-OUT_AXIAL = 9       # axial force, tension positive [N] (damping included)
-OUT_SHEAR = 10      # shear force magnitude [N] (damping included)
+OUT_AXIAL = 9       # elastic axial force, tension positive [N] (damping excluded)
+OUT_SHEAR = 10      # elastic shear force magnitude [N] (damping excluded)
 OUT_WIDTH = 11
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1, u2, p2, out,
-              damped, densify=False, f_yield=None, plastic=None, p0=0.0):
+def beam_bond(b, i, j, x, v, w, rot, mass, inertia, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1,
+              u2, p2, out, damped, densify=False, f_yield=None, plastic=None, p0=0.0):
     """Force on end 1 and moments on ends 1 and 2 of bond ``b``; writes ``out`` [OUT_WIDTH]: F1, M1, M2
     (``OUT_FORCE_1``, ``OUT_MOMENT_1``, ``OUT_MOMENT_2``) and, for the rupture test, the axial force
     ``out[OUT_AXIAL]`` (tension positive) and the shear force magnitude ``out[OUT_SHEAR]`` [N]
-    (both including damping).
+    (both elastic: damping excluded, the strength criterion of docs/physics.md section 7).
 
+    ``mass``, ``inertia`` [kg, kg m^2] of the elements (rows ``i``, ``j``) give the damping of the
+    two rotation modes (``rotation_damping``, with ``2 zeta`` from ``tau_a``); ``tau_b`` is not
+    read (it stays the bonds' bending time constant for the time-step bound).
     ``damped`` and ``densify`` must be compile-time constants at the call site (True or False
     literals): a loop without them carries no trace of their terms. With ``densify``, a bond with
     ``f_yield[b] > 0`` yields in compression and updates ``plastic[b]`` (``densified_extension``).
@@ -152,10 +194,17 @@ def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1
         t10 * t10 + t11 * t11 + t12 * t12 + t10 * t20 + t11 * t21 + t12 * t22
         + t20 * t20 + t21 * t21 + t22 * t22)
 
+    # elastic axial and shear forces: the rupture test's (damping excluded, docs/physics.md 7)
+    fs = 3.0 * kbL * inv_L
+    g0 = t10 + t20
+    g1 = t11 + t21
+    g2 = t12 + t22
+    out[OUT_AXIAL] = ka[b] * dL
+    out[OUT_SHEAR] = fs * np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)   # th_k are normal to n: |n x g| = |g|
+
     # rates (damping)
     if damped:
         ta = tau_a[b]
-        tb = tau_b[b]
         tt = tau_t[b]
         dv0 = v[j, 0] - v[i, 0]
         dv1 = v[j, 1] - v[i, 1]
@@ -164,32 +213,39 @@ def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1
         wc0 = (n1 * dv2 - n2 * dv1) * inv_L
         wc1 = (n2 * dv0 - n0 * dv2) * inv_L
         wc2 = (n0 * dv1 - n1 * dv0) * inv_L
+        # the two rotation modes damped at ratio zeta each (rotation_damping)
+        d11, d12, d21, d22 = rotation_damping(ta, ka[b], kb[b], l0, mass[i], mass[j],
+                                              inertia[i], inertia[j])
         e0 = w[i, 0] - wc0
         e1 = w[i, 1] - wc1
         e2 = w[i, 2] - wc2
         en = e0 * n0 + e1 * n1 + e2 * n2
-        t10 += tb * (e0 - en * n0)
-        t11 += tb * (e1 - en * n1)
-        t12 += tb * (e2 - en * n2)
+        y10 = e0 - en * n0
+        y11 = e1 - en * n1
+        y12 = e2 - en * n2
         e0 = w[j, 0] - wc0
         e1 = w[j, 1] - wc1
         e2 = w[j, 2] - wc2
         en = e0 * n0 + e1 * n1 + e2 * n2
-        t20 += tb * (e0 - en * n0)
-        t21 += tb * (e1 - en * n1)
-        t22 += tb * (e2 - en * n2)
+        y20 = e0 - en * n0
+        y21 = e1 - en * n1
+        y22 = e2 - en * n2
+        t10 += d11 * y10 + d12 * y20
+        t11 += d11 * y11 + d12 * y21
+        t12 += d11 * y12 + d12 * y22
+        t20 += d21 * y10 + d22 * y20
+        t21 += d21 * y11 + d22 * y21
+        t22 += d21 * y12 + d22 * y22
         tw += tt * ((w[j, 0] - w[i, 0]) * n0 + (w[j, 1] - w[i, 1]) * n1 + (w[j, 2] - w[i, 2]) * n2)
 
     fa = ka[b] * dL
-    fs = 3.0 * kbL * inv_L
-    g0 = t10 + t20
-    g1 = t11 + t21
-    g2 = t12 + t22
+    if damped:
+        g0 = t10 + t20
+        g1 = t11 + t21
+        g2 = t12 + t22
     out[0] = fa * n0 + fs * (n1 * g2 - n2 * g1)
     out[1] = fa * n1 + fs * (n2 * g0 - n0 * g2)
     out[2] = fa * n2 + fs * (n0 * g1 - n1 * g0)
-    out[OUT_AXIAL] = fa
-    out[OUT_SHEAR] = fs * np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)   # th_k are normal to n: |n x g| = |g|
     mt = kt[b] * tw
     out[3] = mt * n0 - kbL * (2.0 * t10 + t20)
     out[4] = mt * n1 - kbL * (2.0 * t11 + t21)
@@ -204,8 +260,8 @@ def _bond_loop(damped, breakable, densify):
     """The loop over all bonds with damping, rupture and densification compiled in or out (the
     flags are frozen as constants)."""
     @njit(cache=True, error_model="numpy")
-    def loop(bi, bj, x, v, w, rot, f, t, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1, u2, p2,
-             state, f_tensile, f_shear, f_yield, plastic, p0, n_owned):
+    def loop(bi, bj, x, v, w, rot, mass, inertia, f, t, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1,
+             p1, u2, p2, state, f_tensile, f_shear, f_yield, plastic, p0, n_owned):
         out = np.empty(OUT_WIDTH)
         energy = 0.0
         broken = 0
@@ -216,8 +272,8 @@ def _bond_loop(damped, breakable, densify):
                     continue
             i = bi[b]
             j = bj[b]
-            e = beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_b, tau_t,
-                          u1, p1, u2, p2, out, damped, densify, f_yield, plastic, p0)
+            e = beam_bond(b, i, j, x, v, w, rot, mass, inertia, L0, ka, kb, kt, tau_a, tau_b,
+                          tau_t, u1, p1, u2, p2, out, damped, densify, f_yield, plastic, p0)
             if breakable:
                 mode = rupture_mode(out[OUT_AXIAL], out[OUT_SHEAR], f_tensile[b], f_shear[b])
                 if mode != 0:
@@ -268,6 +324,6 @@ def compute_bonds(bonds, elements):
     b, e = bonds, elements
     densify = b.densify_p0 > 0.0
     kernel = bond_loop(b.damped, b.breakable, densify)
-    return kernel(b.i, b.j, e.x, e.v, e.w, e.rot, e.f, e.t, b.L0, b.ka, b.kb, b.kt,
+    return kernel(b.i, b.j, e.x, e.v, e.w, e.rot, e.mass, e.inertia, e.f, e.t, b.L0, b.ka, b.kb, b.kt,
                   b.tau_a, b.tau_b, b.tau_t, b.u1, b.p1, b.u2, b.p2, b.state, b.f_tensile,
                   b.f_shear, b.f_yield, b.plastic, b.densify_p0 if densify else 1.0, e.n_owned)

@@ -8,6 +8,9 @@ One FIRE update after a velocity-Verlet step, with the global ``P = F . v``, ``|
 * ``P <= 0`` (uphill): ``v <- 0`` (and ``w <- 0``), the mixing ``a`` restarts; FIRE 2.0 (Guenole et
   al. 2020) first steps half a step back (``back_off``).
 
+In the 2D mode (``pardem.engine.plane``) ``v_z = F_z = 0`` after the plane constraint, so the
+mixing keeps the motion in the plane.
+
 Used by ``pardem.engine.relaxation`` (the time loop's FIRE) and ``pardem.domains.compact`` (the
 packing generator's minimiser).
 """

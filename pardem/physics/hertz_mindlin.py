@@ -10,7 +10,9 @@ Laws
 Overlap ``delta`` [m], ``R* = R_i R_j / (R_i + R_j)``, contact radius ``a = sqrt(R* delta)``:
 
 * normal (Hertz): ``fn_el = 4/3 E* sqrt(R*) delta^(3/2) = 4/3 E* a delta``;
-* tangential (Mindlin, no-slip stiffness, incremental): ``dft = -kt ds``, ``kt = 8 G* a``;
+* tangential (Mindlin, no-slip stiffness, incremental): ``dft = -kt ds``, ``kt = 8 G* a``; while the
+  contact opens the stored force is first scaled by ``kt(new) / kt(old)`` (``unload_rescale``), so
+  that no load-unload cycle creates energy;
 * Coulomb: ``|ft| <= mu fn`` (the stored force is scaled back when it exceeds the cap);
 * optional normal damping (chosen at setup): ``fn = fn_el + gamma sqrt(m* Sn) d(delta)/dt`` with the
   tangent stiffness ``Sn = d fn_el / d delta = 2 E* a`` and ``m* = m_i m_j / (m_i + m_j)``; the total
@@ -47,7 +49,10 @@ Returned per call: the elastic energy ``sum 2/5 fn_el delta + |h|^2 / (2 kt)`` [
 ``2/5 fn_el delta = 8/15 E* sqrt(R*) delta^(5/2)`` is the exact potential of the Hertz force
 (``= 2/5 kn delta^2`` with the secant stiffness ``kn = fn_el / delta``). The tangential part is the
 energy of the current tangential spring (the incremental Mindlin law is path dependent, so it is a
-state measure, not a potential).
+state measure, not a potential). With the unloading rescale it is a storage function of the
+law: no step raises it by more than the work done on the contact (a step at fixed ``kt`` is
+elastic; loading lowers ``|h|^2 / (2 kt)`` at fixed ``h``; the rescale multiplies it by
+``kt(new) / kt(old) < 1``), so the law is passive.
 
 Cemented contacts (docs/physics.md section 8, G ch. 7)
 -------------------------------------------------
@@ -301,6 +306,24 @@ def mindlin_stiffness(g_star, a):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def unload_rescale(hist, p, delta, un, dt):
+    """Scale the stored tangential force ``hist[p, 0:3]`` by ``kt(new) / kt(old) = a / a_old =
+    sqrt(delta / delta_old)`` while the contact opens (``un = d(delta)/dt < 0``), in place.
+
+    ``delta_old = delta - un dt`` is the overlap of the previous step (exact for a normal relative
+    motion, to second order in the tangential one). Without it an unloaded contact keeps a force
+    its smaller ``kt`` cannot give back, and a closed load-unload cycle below sliding creates
+    energy (``tests/test_mindlin_cycle.py``). While the contact closes nothing is scaled, as in
+    LAMMPS' ``mindlin_rescale/force`` and Thornton's unloading rule.
+    """
+    if un < 0.0:
+        s = np.sqrt(delta / (delta - un * dt))
+        hist[p, 0] *= s
+        hist[p, 1] *= s
+        hist[p, 2] *= s
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def hertz_mindlin_forces(p, i, j, ri, rj, rsum, delta, n0, n1, n2, un, ut0, ut1, ut2, spin, mass, hist,
                          dt, e_star, g_star, mu, gamma, damped):
     """The laws of a touching pair (overlap ``delta`` > 0 [m], normal ``n``, relative motion ``un``,
@@ -310,6 +333,7 @@ def hertz_mindlin_forces(p, i, j, ri, rj, rsum, delta, n0, n1, n2, un, ut0, ut1,
     m_star = mass[i] * mass[j] / (mass[i] + mass[j])     # dead code unless damped
     fn, fn_el, a = hertz_normal(ri * rj / rsum, m_star, delta, un, e_star, gamma, damped)
     kt = mindlin_stiffness(g_star, a)
+    unload_rescale(hist, p, delta, un, dt)
     h0, h1, h2 = update_history(hist, p, n0, n1, n2, ut0, ut1, ut2, spin, dt, kt, mu * fn)
     return fn, h0, h1, h2, 0.4 * fn_el * delta + 0.5 * (h0 * h0 + h1 * h1 + h2 * h2) / kt
 

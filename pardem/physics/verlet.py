@@ -11,8 +11,11 @@ from pardem.physics.quaternion import quat_to_matrix_into, rotate_world
 
 
 @njit(cache=True, error_model="numpy")
-def kick_drift(x, v, w, q, rot, f, t, inv_mass, inv_inertia, dt, n_owned):
-    """Half kick with the forces of the previous step, drift by ``dt``, then zero ``f`` and ``t``."""
+def kick_drift(x, v, w, q, rot, f, t, inv_mass, inv_inertia, dt, n_owned, with_rot=True):
+    """Half kick with the forces of the previous step, drift by ``dt``, then zero ``f`` and ``t``.
+    ``with_rot``: also refresh the cached rotation matrices ``rot`` from ``q`` (only the bond
+    kernels read them; a run without bonds skips it and refreshes on demand,
+    ``Elements.refresh_rotations``)."""
     h = 0.5 * dt
     for k in range(n_owned):
         im = inv_mass[k] * h
@@ -24,7 +27,8 @@ def kick_drift(x, v, w, q, rot, f, t, inv_mass, inv_inertia, dt, n_owned):
             f[k, d] = 0.0
             t[k, d] = 0.0
         rotate_world(q[k], w[k], dt)
-        quat_to_matrix_into(q[k], rot[k])
+        if with_rot:
+            quat_to_matrix_into(q[k], rot[k])
     for k in range(n_owned, x.shape[0]):
         for d in range(3):
             f[k, d] = 0.0
@@ -57,3 +61,33 @@ def kinetic_energy(v, w, mass, inertia, n_owned):
         e += 0.5 * mass[k] * (v[k, 0] ** 2 + v[k, 1] ** 2 + v[k, 2] ** 2)
         e += 0.5 * inertia[k] * (w[k, 0] ** 2 + w[k, 1] ** 2 + w[k, 2] ** 2)
     return e
+
+
+@njit(cache=True, error_model="numpy")
+def enforce_plane(x, v, w, f, t, z0, n_owned, removed):
+    """Plane constraint of the owned rows (2D mode, ``pardem.engine.plane``): zero ``f_z``,
+    ``t_x``, ``t_y``, ``v_z``, ``w_x``, ``w_y`` and put ``x_z = z0`` [m].
+
+    removed [3]: set to this rank's sum of the removed ``f_z`` [N], ``t_x``, ``t_y`` [N m]. Returns
+    the largest ``|x_z - z0|`` [m] found before the reset (0 when the plane held, as it does under
+    velocity Verlet once ``v_z = f_z = 0``).
+    """
+    removed[0] = 0.0
+    removed[1] = 0.0
+    removed[2] = 0.0
+    off = 0.0
+    for k in range(n_owned):
+        removed[0] += f[k, 2]
+        removed[1] += t[k, 0]
+        removed[2] += t[k, 1]
+        dz = abs(x[k, 2] - z0)
+        if not dz <= off:
+            off = dz
+        x[k, 2] = z0
+        v[k, 2] = 0.0
+        w[k, 0] = 0.0
+        w[k, 1] = 0.0
+        f[k, 2] = 0.0
+        t[k, 0] = 0.0
+        t[k, 1] = 0.0
+    return off

@@ -11,6 +11,9 @@ error ``(C dt)^2 / 2`` per step against ``exp(-C dt)``); keep ``C dt`` well belo
 
 Only owned rows ``[0, n_owned)`` are damped: ghost rows are copies, and damping them too would count
 the drag twice once ghost forces are sent back to their owners.
+
+In the 2D mode (``pardem.engine.plane``) the drag acts on the constrained fields as they are: with
+``v_z = w_x = w_y = 0`` it adds no out-of-plane force or torque, and the plane constraint runs after it.
 """
 from numba import njit
 

@@ -39,7 +39,9 @@ The wall has an infinite mass, so the reduced mass of the calibrations is the el
 both calibrations then give the requested restitution for a sphere hitting the wall.
 ``fn`` is clipped at zero (no tension). Friction (``friction > 0``): incremental spring
 ``dh = -kt ds`` on the stored elastic tangential force ``h`` [N] on the element, Coulomb cap
-``|h| <= mu fn`` (``contact_frame.update_history``). Since walls only translate, ``h`` lives in the
+``|h| <= mu fn`` (``contact_frame.update_history``); with the Hertz law, while the contact opens
+``h`` is first scaled by ``kt(new)/kt(old)`` (``hertz_mindlin.unload_rescale``, as for pairs: no
+load-unload cycle creates energy). Since walls only translate, ``h`` lives in the
 wall's frame: each step it is only projected onto the current plane and rescaled (the
 ``contact_frame`` carry with zero spin; the pair law's turn by the mean spin of the pair would turn
 it at half the element's drilling spin, which a wall that does not rotate has no reason to do).
@@ -75,7 +77,7 @@ from numba import njit
 
 from pardem.physics.contact_frame import update_history
 from pardem.physics.hertz_mindlin import (effective_moduli, hertz_damping_coefficient, hertz_normal,
-                                          mindlin_stiffness)
+                                          mindlin_stiffness, unload_rescale)
 from pardem.physics.linear_contact import damping_ratio, linear_normal, linear_tangential
 
 LAWS = ("linear", "hertz")
@@ -194,6 +196,9 @@ def wall_contact(k, wl, delta, n0, n1, n2, v, w, radius, mass, velocities, hist,
         # zero spin: the history lives in the frame of the wall, which does not rotate
         if hertz:
             kt = mindlin_stiffness(stiff_t, a)
+            # kt follows the contact radius: scale the stored force down while the contact opens
+            # (-un = d(delta)/dt), or a load-unload cycle creates energy (hertz_mindlin.unload_rescale)
+            unload_rescale(hist[k], wl, delta, -un, dt)
             h0, h1, h2 = update_history(hist[k], wl, n0, n1, n2, ut0, ut1, ut2, 0.0, dt, kt, cap)
             g0, g1, g2 = h0, h1, h2
         else:

@@ -28,6 +28,10 @@ Two shear relations (``RELATIONS``, chosen by the deck's ``bonds.relations``):
 The lattice has Poisson ratio 0 whatever the relations (``LATTICE_POISSON``): face bonds along the
 load carry it alone and nothing couples it to the lateral directions (docs/physics.md section 4).
 
+Compact (random) domains have no closed form: with ``domain.kind = "compact"`` the driver calibrates
+them by measurement (``pardem.protocols.compact_calibration``, deck section ``[compact]``), starting
+from these relations.
+
 References: docs/physics.md sections 1, 2, 4, 6 (W 4.5, 4.14).
 """
 import math
@@ -72,7 +76,16 @@ CALIBRATE_SCHEMA = {
     },
     "domain": {
         "box": Field([0.01, 0.01, 0.01], triple(positive()), "box of the calibrated deck's ordered domain [m]"),
-        "radius": Field(0.2381e-3, positive(), "element radius [m]"),
+        "radius": Field(0.2381e-3, positive(), "element radius [m] (compact: the requested mean radius)"),
+        "kind": Field("ordered", choice("ordered", "compact"),
+                      "domain to calibrate: ordered (closed-form relations, --verify measures them) or compact "
+                      "(random packing: iterative calibration by measurement, section [compact])"),
+        "dispersity": Field(0.1, number(0.0, 0.5, lo_open=False),
+                            "compact: radii uniform in radius * (1 - dispersity, 1 + dispersity)"),
+        "bond_gap": Field(0.01, number(0.0, 0.5, lo_open=True, hi_open=False),
+                          "compact: bond the pairs whose surface gap is below bond_gap * mean radius"),
+        "seed": Field(0, number(lo=0, lo_open=False, integer=True),
+                      "compact: packing seed of realisation 0 (realisation k uses seed + k)"),
     },
     "bonds": {
         "relations": Field("exact", choice(*RELATIONS),
@@ -97,6 +110,30 @@ CALIBRATE_SCHEMA = {
         "tolerance": Field(0.02, number(0.0, 1.0),
                            "--verify: largest |measured / target - 1| of a modulus that passes"),
     },
+    "compact": {
+        "realisations": Field(4, number(lo=1, lo_open=False, hi=256, hi_open=False, integer=True),
+                              "compact: packings (seeds domain.seed + k) whose mean moduli are calibrated; "
+                              "spread over the ranks, one realisation per rank at a time"),
+        "shear_plane": Field("LT", choice(*SHEAR_PLANES, "all"),
+                             "compact: plane whose shear modulus must equal targets.shear (one common bond "
+                             "radius factor is fitted), or all (G_LR = G_LT = G_RT = targets.shear: one radius "
+                             "per direction)"),
+        "tolerance": Field(0.02, number(0.0, 0.5),
+                           "compact: largest |mean measured / target - 1| of every modulus at convergence"),
+        "max_iterations": Field(8, number(lo=1, lo_open=False, hi=50, hi_open=False, integer=True),
+                                "compact: measurements at most (exit code 6 when the last misses a target)"),
+        "max_step": Field(4.0, number(1.0, 100.0, hi_open=False),
+                          "compact: largest factor by which one iteration changes a bond modulus or radius"),
+        "start_factors": Field([1.0, 1.0, 1.0], triple(number(0.01, 100.0, lo_open=False, hi_open=False)),
+                               "compact: first bond moduli (L, R, T) = these factors times the closed form of "
+                               "bonds.relations"),
+        "start_radius_factor": Field(1.0, number(0.1, 10.0, lo_open=False, hi_open=False),
+                                     "compact: first bond radius ratios = this factor times the closed form"),
+        "strain": Field(0.002, number(0.0, 0.05), "compact: nominal compression strain of the measurements"),
+        "shear_strain": Field(0.002, number(0.0, 0.05), "compact: engineering shear strain of the shear tests"),
+        "transits": Field(6.0, number(1.0, 1000.0, lo_open=False, hi_open=False),
+                          "compact: loading time of every test in wave transits across the domain"),
+    },
     "output": {
         "series_every": Field(0, number(lo=0, lo_open=False, integer=True),
                               "--verify: steps between series samples of a run; 0 = about 200 per run"),
@@ -104,7 +141,25 @@ CALIBRATE_SCHEMA = {
                            "--verify: steps between ParaView snapshots (DIR/paraview/<run>/pardem.pvd); 0 = none"),
     },
 }
-CALIBRATE_SCHEMA = Schema(CALIBRATE_SCHEMA, checks=deck_checks.CALIBRATE_CHECKS)   # whole-deck checks
+COMPACT_MIN_EDGE = 6.0       # pardem.domains.compact.MIN_EDGE (mean radii per box edge)
+
+
+def compact_checks(deck):
+    """A compact calibration's box holds a packing (every edge at least COMPACT_MIN_EDGE radii) and
+    its strains can be resolved (``deck_checks.check_strain``)."""
+    if deck["domain"]["kind"] != "compact":
+        return
+    box, R = deck["domain"]["box"], deck["domain"]["radius"]
+    for k, edge in enumerate(box):
+        if edge < COMPACT_MIN_EDGE * R:
+            raise DeckError(f"domain.box = {list(box)} with domain.radius = {R}: domain.box[{k}] = {edge!r} is "
+                            f"too short for a compact packing: expected every edge at least {COMPACT_MIN_EDGE:g} "
+                            f"radii ({COMPACT_MIN_EDGE * R:.6g} m)")
+    for key in ("strain", "shear_strain"):
+        deck_checks.check_strain(deck["compact"][key], f"compact.{key}")
+
+
+CALIBRATE_SCHEMA = Schema(CALIBRATE_SCHEMA, checks=deck_checks.CALIBRATE_CHECKS + (compact_checks,))
 
 
 @dataclass(frozen=True)

@@ -120,8 +120,11 @@ def build_case(comm, deck, steps=None, packing=None, plates=True):
         extent = np.array(dom["box"], dtype=np.float64)
     else:
         R = dom["radius"]
+        # a loading axis off the grid axes: flat faces under the plates (domains.ordered)
+        off_grid = _lattice_axis(lrt_frame(dom["tilt_deg"]), axis) is None
         try:
-            pos, pairs, frame = ordered_lattice(dom["box"], R, dom["tilt_deg"])
+            pos, pairs, frame = ordered_lattice(dom["box"], R, dom["tilt_deg"],
+                                                flat_axis=axis if off_grid else None)
         except ValueError as err:
             raise DeckError(f"domain.box = {list(dom['box'])} with domain.radius = {R}: {err}") from None
         radii = np.full(len(pos), R)
@@ -214,7 +217,7 @@ def build_case(comm, deck, steps=None, packing=None, plates=True):
     constants = CompressionConstants(
         dt=dt, dt_critical=dt_c, plate_stiffness=k_plate, ramp_time=ramp, wall_young=wall_young,
         lateral_walls=lateral, plate_low=low, plate_high=high, axis=axis, length=length,
-        cross_section=float(extent[others[0]] * extent[others[1]]), transit_time=transit,
+        cross_section=_cross_section(dom, pos, axis, low, high, extent), transit_time=transit,
         analytic_young=_analytic_young(bd, frame, axis) if dom["kind"] == "ordered" else float("nan"),
         n_elements=n_global, n_bonds=len(pairs), origin=0.5 * (pos.min(axis=0) + pos.max(axis=0)),
         slab_axis=slab_axis, ghost_range=ghost_range, skin=skin, damped=bonds.damped,
@@ -222,6 +225,27 @@ def build_case(comm, deck, steps=None, packing=None, plates=True):
         contact_params=contact_params, contact_reach=reach, domain_facts=facts)
     return _assemble(comm, deck, elements, bonds, domain, constants, steps, contacts=contacts,
                      with_plates=plates)
+
+
+def _lattice_axis(frame, axis):
+    """Index (0 L, 1 R, 2 T) of the frame axis along the loading ``axis``, or None (off the grid)."""
+    along = np.nonzero(np.isclose(np.abs(frame[:, axis]), 1.0))[0]
+    return int(along[0]) if len(along) == 1 else None
+
+
+def _cross_section(dom, pos, axis, low, high, extent):
+    """Initial section across the load [m^2]: the box's (compact; ordered loaded along a grid axis:
+    the extent of the elements), or for an ordered grid loaded off its axes (staircase side faces)
+    the section it represents: each element stands for its cubic cell (2R)^3, so the elements whose
+    centres lie in the slab ``[low + 2R, high - 2R)`` (clear of the flattened faces) fill the slab's
+    volume, and the section is that volume over the slab's width."""
+    others = [a for a in range(3) if a != axis]
+    if dom["kind"] != "ordered" or _lattice_axis(lrt_frame(dom["tilt_deg"]), axis) is not None:
+        return float(extent[others[0]] * extent[others[1]])
+    cell = 2.0 * dom["radius"]
+    a, b = low + cell, high - cell
+    inside = np.count_nonzero((pos[:, axis] >= a) & (pos[:, axis] < b))
+    return float(inside * cell**3 / (b - a))
 
 
 def _ramp_time(loading, length, transit):
@@ -455,10 +479,9 @@ def _wave_speed(comm, bonds, elements, axis):
 
 def _analytic_young(bd, frame, axis):
     """``pi/4 E r_adim^2`` of the ordered lattice loaded along a lattice axis (docs/physics.md section 6)."""
-    along = np.nonzero(np.isclose(np.abs(frame[:, axis]), 1.0))[0]
-    if len(along) != 1:
+    k = _lattice_axis(frame, axis)   # which of L, R, T lies along the loading axis
+    if k is None:
         return float("nan")
-    k = int(along[0])   # which of L, R, T lies along the loading axis
     E = np.broadcast_to(np.asarray(bd["young"], dtype=float), (3,))[k]
     r = np.broadcast_to(np.asarray(bd["radius_ratio"], dtype=float), (3,))[k]
     return float(np.pi / 4.0 * E * r * r)

@@ -91,16 +91,32 @@ def estimate_memory(n_elements, n_bonds=0.0, n_pairs=0.0):
     return n_elements * (el + BUILD_BYTES_PER_ELEMENT) + n_bonds * bond + n_pairs * pair
 
 
-def check_memory(n_elements, n_bonds, n_pairs, keys, what):
-    """Refuse a run whose estimated memory exceeds the memory available on this machine.
+_ranks_per_node = 1     # ranks of the job sharing this node's memory (``set_ranks_per_node``)
 
-    ``keys``: the deck keys that set the size (named in the message); ``what``: the counts in words."""
+
+def set_ranks_per_node(ranks):
+    """The number of ranks of the job on this rank's node (``pardem.parallel.layout``; the drivers
+    set it before checking a deck): each of them builds the whole case before keeping its slab."""
+    global _ranks_per_node
+    _ranks_per_node = max(1, int(ranks))
+
+
+def check_memory(n_elements, n_bonds, n_pairs, keys, what):
+    """Refuse a run whose estimated memory on this node exceeds the memory available on it: every
+    rank on the node builds the whole case (global arrays and state) before it keeps its slab, so
+    the node's peak is the ranks on it times one build.
+
+    ``keys``: the deck keys that set the size (named in the message); ``what``: the counts in words.
+    Returns the estimate of one rank [bytes]."""
     need = estimate_memory(n_elements, n_bonds, n_pairs)
+    node = need * _ranks_per_node
     have = available_memory()
-    if not math.isfinite(need) or (have is not None and need > have):
+    if not math.isfinite(node) or (have is not None and node > have):
         avail = f"the {gib(have)} available on this machine" if have is not None else "any machine's memory"
-        raise DeckError(f"{keys}: {what} need about {gib(need)} of memory, more than {avail}: expected a "
-                        f"smaller domain (fewer elements)")
+        per = (f"; {_ranks_per_node} ranks on this node each build the whole case, {gib(need)} each"
+               if _ranks_per_node > 1 else "")
+        raise DeckError(f"{keys}: {what} need about {gib(node)} of memory{per}, more than {avail}: expected a "
+                        f"smaller domain (fewer elements)" + (" or fewer ranks per node" if _ranks_per_node > 1 else ""))
     return need
 
 

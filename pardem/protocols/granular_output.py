@@ -27,6 +27,32 @@ from pardem.io.series_h5 import SeriesH5
 CHECKPOINT_SECTION = DECK_SECTION   # the [checkpoint] section, shared with compress
 
 
+def dimension_value(name, v):
+    """Deck checker of ``domain.dimension``: the integer 2 or 3."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or v not in (2, 3):
+        raise DeckError(f"{name} = {v!r}: expected 2 (spheres with centres in the plane z = 0, moving in "
+                        "x, y and turning about z) or 3")
+    return int(v)
+
+
+dimension_value.options = (2, 3)
+
+# the [domain] section of the granular decks (pardem.engine.plane: the 2D mode)
+DOMAIN_SECTION = {
+    "dimension": Field(3, dimension_value,
+                       "3, or 2: spheres (full mass and inertia, 3D contact laws) with centres in the "
+                       "plane z = 0, moving in x, y and turning about z; the cell is periodic in x, y and "
+                       "stresses are per unit area of the plane over the mean diameter [Pa]"),
+}
+
+
+def domain_checks(deck):
+    """Whole-deck check of the 2D mode: the slabs are stacked along x or y (all centres lie at z = 0)."""
+    if deck["domain"]["dimension"] == 2 and deck["run"]["slab_axis"] == "z":
+        raise DeckError("run.slab_axis = 'z': expected 'x' or 'y' with domain.dimension = 2 (the grains "
+                        "lie in the plane z = 0)")
+
+
 def run_section(dt_help, skin_help):
     """The [run] section of a granular deck: time step fraction (``dt_help`` says of which critical
     step), skin (``skin_help``: its auto value), slab axis, progress and watchdog periods."""

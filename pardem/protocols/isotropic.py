@@ -64,6 +64,17 @@ Protocol (driver ``python -m pardem.drivers.isotropic``; ``prepare`` is the reus
 6. Before the next pressure the friction is switched off again (history cleared) and the servo
    resumes at the new p0.
 
+**2D mode** (``[domain] dimension = 2``, ``pardem.engine.plane``): the same protocol with spheres
+(full mass and inertia, 3D Hertz-Mindlin contacts) whose centres lie in the plane z = 0, moving in
+x, y and turning about z, in a square cell periodic in x and y. The gas is a random sequential
+addition of disks at the area fraction ``sample.gas_solid_fraction``; stresses are per unit area
+of the plane divided by the mean diameter ``t`` (the cell's thickness, ``PeriodicCell``), in Pa;
+the pressure is ``p = -(s_xx + s_yy) / 2``; the servo drives x and y; the solid fraction is the
+disk area over the cell area with the overlap lenses (circular segments) removed
+(``pardem.physics.structure.solid_fraction``); rattlers have fewer than ``d + 1 = 3`` contacts;
+the bulk increment is ``diag(-e, -e, 0)`` and ``K = (p1 - p0) / (-(A1 - A0) / A0)`` (2D bulk
+modulus), the shear increment and ``mu`` as in 3D.
+
 The contact law is Hertz-Mindlin (``pardem.physics.hertz_mindlin``); all loops over elements and
 contacts per step run in the engine's Numba kernels; the checks are numpy over arrays every
 ``check_every`` steps.
@@ -82,7 +93,8 @@ from pardem.physics.contact_frame import pair_geometry
 from pardem.engine.reducer import granular_measures
 from pardem.engine.relaxation import Fire
 from pardem.parallel.exact_sum import exact_sum
-from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit, run_section
+from pardem.protocols.granular_output import (CHECKPOINT_SECTION, DOMAIN_SECTION, StepLimit, domain_checks,
+                                              run_section)
 
 ROW_KEYS = ("p0", "p", "Z", "Z_no_rattlers", "solid_fraction", "K_affine", "K_relaxed", "mu_affine",
             "mu_relaxed")
@@ -117,6 +129,8 @@ def run_checks(deck):
                    "moduli.max_relax_steps", "the step caps allow a run that")
     mean_volume = 4.0 / 3.0 * np.pi * dc.cube(r_min)
     edge = (s["n"] * mean_volume / dc.DENSEST_FRACTION) ** (1.0 / 3.0)
+    if deck["domain"]["dimension"] == 2:   # disks at the densest (hexagonal) area fraction
+        edge = np.sqrt(s["n"] * np.pi * r_min * r_min / (np.pi / np.sqrt(12.0)))
     E = young_modulus(mat)
     dc.check_rate(pr["max_rate"], edge, np.sqrt(E / s["density"]), "preparation.max_rate",
                   "material.shear_modulus, sample.density")
@@ -124,6 +138,7 @@ def run_checks(deck):
 
 
 SCHEMA = Schema({
+    "domain": DOMAIN_SECTION,
     "sample": {
         "n": Field(10000, number(lo=8, lo_open=False, integer=True), "number of spheres"),
         "radii": Field([0.105e-3, 0.095e-3], number_list(positive()), "sphere radii [m] (one per species)"),
@@ -182,7 +197,7 @@ SCHEMA = Schema({
                            "steps between ParaView snapshots (DIR/paraview/pardem.pvd); 0 = none"),
         "plot": Field(True, boolean, "draw isotropic.png and force_distribution.png (needs matplotlib)"),
     },
-}, checks=(sample_checks, run_checks))
+}, checks=(domain_checks, sample_checks, run_checks))
 
 # the series: one row per equilibrium check (every preparation.check_every steps) of every stage
 STAGES = ("prepare", "K", "mu")      # the series' stage codes 0, 1, 2
@@ -193,8 +208,9 @@ SERIES_INT = ("step", "pressure_index", "stage")
 SERIES_DESCRIPTION = (
     "pardem isotropic series: one row per equilibrium check (every preparation.check_every steps) of "
     "the preparation at the target pressure p0 (stage 0) and of the relaxations after the bulk (1) "
-    "and shear (2) strain increments; pressure p (compression positive), solid fraction (sphere "
-    "volume over cell volume, overlaps not removed), coordination 2 N_c / N, kinetic = E_k / (N p0 "
+    "and shear (2) strain increments; pressure p (compression positive; 2D: -(s_xx + s_yy) / 2, "
+    "stress per unit area over the mean diameter), solid fraction (sphere volume over cell volume, "
+    "2D: disk area over cell area; overlaps not removed), coordination 2 N_c / N, kinetic = E_k / (N p0 "
     "V_mean), unbalanced (mean and max unbalanced force over the mean contact force), the time step "
     "(FIRE adapts it) and the cell's strain rate; one dataset per column with its 'units'")
 
@@ -236,28 +252,34 @@ def species_radii(n, radii, fractions, rng):
     return r[rng.permutation(n)]
 
 
-def gas(n, radii, fractions, solid_fraction, seed):
+def gas(n, radii, fractions, solid_fraction, seed, dim=3):
     """Random non-overlapping centres [n, 3] in a periodic cube, the radii [n] and the edge [m].
 
     Random sequential addition: each sphere is drawn uniformly until it overlaps none of those
-    placed (checked in the 27 neighbouring cells of a grid of cell size >= 2 R_max).
+    placed (checked in the 27 neighbouring cells of a grid of cell size >= 2 R_max). ``dim = 2``:
+    disks in a periodic square at the area fraction ``solid_fraction``, centres at z = 0 (9 cells).
     """
     rng = np.random.default_rng(seed)
     r = species_radii(n, radii, fractions, rng)
-    edge = (np.sum(4.0 / 3.0 * np.pi * r**3) / solid_fraction) ** (1.0 / 3.0)
+    if dim == 2:
+        edge = np.sqrt(np.sum(np.pi * r**2) / solid_fraction)
+    else:
+        edge = (np.sum(4.0 / 3.0 * np.pi * r**3) / solid_fraction) ** (1.0 / 3.0)
     m = max(1, int(edge // (2.0 * r.max())))
     size = edge / m
     grid = {}
-    pos = np.empty((n, 3))
+    pos = np.zeros((n, 3))
+    zs = (0,) if dim == 2 else (-1, 0, 1)
     for k in range(n):
         for _ in range(100000):
-            x = rng.uniform(0.0, edge, 3)
+            x = np.zeros(3)
+            x[:dim] = rng.uniform(0.0, edge, dim)
             c = np.floor(x / size).astype(int) % m
-            near = [q for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
+            near = [q for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in zs
                     for q in grid.get(((c[0] + dx) % m, (c[1] + dy) % m, (c[2] + dz) % m), ())]
             if near:
                 d = pos[near] - x
-                d -= edge * np.round(d / edge)
+                d[:, :dim] -= edge * np.round(d[:, :dim] / edge)
                 if np.any(np.einsum("ij,ij->i", d, d) < (r[near] + r[k]) ** 2):
                     continue
             pos[k] = x
@@ -288,10 +310,12 @@ def contact_forces(sim):
 
 def balance(sim, p0=None):
     """Equilibrium measures (collective): dict with ``pressure`` [Pa], ``kinetic`` = E_k / (N p0
-    V_mean) (p0 defaults to p), ``unbalanced`` = mean |F| / mean |f_c| and ``unbalanced_max`` =
-    max |F| / mean |f_c|, ``n_contacts``."""
+    V_mean) (p0 defaults to p; V_mean the mean sphere volume, also in 2D), ``unbalanced`` = mean
+    |F| / mean |f_c| and ``unbalanced_max`` = max |F| / mean |f_c|, ``n_contacts``,
+    ``solid_fraction_raw`` (overlaps not removed; 2D: disk areas over the cell area)."""
     e = sim.elements
     n = e.n_owned
+    dim = sim.cell.dimension
     vh = e.v[:n] - 0.5 * sim.dt * e.f[:n] * e.inv_mass[:n, None]   # velocity the drag was computed with
     fc = e.f[:n] + sim.viscous_damping * e.mass[:n, None] * vh
     fmag = np.sqrt(np.einsum("ij,ij->i", fc, fc))
@@ -299,16 +323,20 @@ def balance(sim, p0=None):
     fcmag = np.sqrt(np.einsum("ij,ij->i", cf["force"], cf["force"]))
     # exact sums of the per-element and per-contact terms: the same bits on any number of ranks
     # (the equilibrium decisions feed back into the run)
-    cols = np.zeros((max(n, len(fcmag)), 3))
+    cols = np.zeros((max(n, len(fcmag)), 4 if dim == 2 else 3))
     cols[:n, 0] = fmag
     cols[:len(fcmag), 1] = fcmag
     cols[:n, 2] = 4.0 / 3.0 * np.pi * e.radius[:n] ** 3
+    if dim == 2:
+        cols[:n, 3] = np.pi * e.radius[:n] ** 2      # disk areas
     sums = exact_sum(sim.comm, cols)
     counts = sim.comm.sum([n, len(fcmag)])     # integers: exact
     g = [sums[0], counts[0], sums[1], counts[1], sums[2]]
     fmax = sim.comm.max(float(fmag.max()) if n else 0.0)
     stress = sim.global_stress()
-    p = float(-np.trace(stress) / 3.0)
+    p = sim.cell.pressure(stress)
+    # overlaps not removed: sphere volumes over the cell volume (2D: disk areas over its area)
+    raw = float(sums[3] / sim.cell.area) if dim == 2 else float(g[4] / sim.cell.volume)
     ref = p if p0 is None else p0
     mean_fc = g[2] / g[3] if g[3] > 0 else 0.0
     ke = sim.kinetic_energy()
@@ -317,7 +345,7 @@ def balance(sim, p0=None):
             "unbalanced": float(g[0] / g[1] / mean_fc) if mean_fc > 0 else float("inf"),
             "unbalanced_max": float(fmax / mean_fc) if mean_fc > 0 else float("inf"),
             "n_contacts": int(round(g[3])), "mean_contact_force": float(mean_fc),
-            "n_elements": int(round(g[1])), "solid_volume": float(g[4])}
+            "n_elements": int(round(g[1])), "solid_volume": float(g[4]), "solid_fraction_raw": raw}
 
 
 def remove_rattlers(n, gid_i, gid_j, dim=3):
@@ -334,8 +362,11 @@ def network(sim, bins=None):
     ``edges``, ``density``, also ``mean_fn`` [N])."""
     m = granular_measures(sim)
     cf = contact_forces(sim)
+    dim = sim.cell.dimension
+    e = sim.elements
     parts = sim.comm.gather({"gi": cf["gid_i"], "gj": cf["gid_j"], "fn": cf["fn"],
-                             "ratio": cf["delta"] / cf["dist"]})
+                             "ratio": cf["delta"] / cf["dist"], "dist": cf["dist"],
+                             "gid": e.gid[:e.n_owned], "radius": e.radius[:e.n_owned]})
     n = int(round(float(sim.comm.sum(sim.elements.n_owned))))
     out = None
     if sim.comm.is_root:
@@ -343,9 +374,10 @@ def network(sim, bins=None):
         gj = np.concatenate([q["gj"] for q in parts]).astype(np.int64)
         fn = np.concatenate([q["fn"] for q in parts])
         ratio = np.concatenate([q["ratio"] for q in parts])
+        dist = np.concatenate([q["dist"] for q in parts])
         o = np.lexsort((gj, gi))        # gid order: the means do not depend on the ranks
-        gi, gj, fn, ratio = gi[o], gj[o], fn[o], ratio[o]
-        alive, live = remove_rattlers(n, gi, gj)
+        gi, gj, fn, ratio, dist = gi[o], gj[o], fn[o], ratio[o], dist[o]
+        alive, live = remove_rattlers(n, gi, gj, dim=dim)
         mean_fn = float(fn.mean()) if len(fn) else 0.0
         edges = np.linspace(0.0, 5.0, 51) if bins is None else bins
         dens, _ = np.histogram(fn / mean_fn if mean_fn > 0 else fn, bins=edges, density=True)
@@ -356,9 +388,19 @@ def network(sim, bins=None):
                "force_distribution": {"edges": edges.tolist(), "density": dens.tolist(),
                                       "mean_fn": mean_fn,
                                       "fraction_above_mean": float(np.mean(fn > mean_fn)) if len(fn) else 0.0}}
+        if dim == 2:
+            # disk areas (the spheres' sections by z = 0) minus the lens areas, over L_x L_y
+            radius = np.zeros(n)
+            for q in parts:
+                radius[q["gid"]] = q["radius"]
+            out["solid_fraction"] = structure.solid_fraction(radius, sim.cell.length[:2], dim=2, i=gi,
+                                                             j=gj, dist=dist)[0]
     out = sim.comm.bcast(out)
-    out["p"] = m["pressure"]
-    out["solid_fraction"] = m["solid_fraction"]
+    if dim == 2:
+        out["p"] = sim.cell.pressure(m["stress"])
+    else:
+        out["p"] = m["pressure"]
+        out["solid_fraction"] = m["solid_fraction"]
     return out
 
 
@@ -401,7 +443,8 @@ class SweepRun:
 
 
 class ServoStiffness:
-    """Operation keeping the cell's ``servo_stiffness`` ``S = -dp/de = kd2 / (3 V) + 2 p`` [Pa] (the
+    """Operation keeping the cell's ``servo_stiffness`` ``S = -dp/de = kd2 / (3 V) + 2 p`` [Pa] (in 2D
+    ``kd2 / (2 V) + p``, with V = L_x L_y t and the in-plane p; the
     frictionless network's affine stiffness, ``Contacts.stiffness``) up to date, so that the
     pressure servo caps its gain at ``1 / (2 S dt)`` (``PeriodicCell``). Collective."""
 
@@ -410,8 +453,10 @@ class ServoStiffness:
 
     def __call__(self, sim):
         kd2 = sim.contacts.global_affine_stiffness(sim.comm, sim.elements)
-        p = max(-float(np.trace(sim.stress)) / 3.0, 0.0)
-        sim.cell.servo_stiffness = kd2 / (3.0 * sim.cell.volume) + 2.0 * p
+        p = max(sim.cell.pressure(sim.stress), 0.0)
+        # d dimensions (d = 2: the in-plane strain of a 2D cell): S = kd2 / (d V) + (d - 1) p
+        d = sim.cell.dimension
+        sim.cell.servo_stiffness = kd2 / (d * sim.cell.volume) + (d - 1) * p
 
 
 def relax(sim, tol, check_every, max_steps, p0=None, progress=None, label="", operations=(),
@@ -450,12 +495,18 @@ def relax(sim, tol, check_every, max_steps, p0=None, progress=None, label="", op
             return b, bool(ok), steps
 
 
+def dimension(deck):
+    """The deck's ``domain.dimension`` (3 for a deck written before the 2D mode)."""
+    return int(deck.get("domain", {}).get("dimension", 3))
+
+
 def build_gas(comm, deck):
     """The granular case of the deck's gas (frictionless, damped, servo off), and the gas info."""
     s, mat, run = deck["sample"], deck["material"], deck["run"]
+    dim = dimension(deck)
     data = None
     if comm.is_root:
-        data = gas(s["n"], s["radii"], s["fractions"], s["gas_solid_fraction"], s["seed"])
+        data = gas(s["n"], s["radii"], s["fractions"], s["gas_solid_fraction"], s["seed"], dim=dim)
     pos, radii, edge = comm.bcast(data)
     params = contact_params(mat, 0.0, mat["restitution"])
     dt_c = granular.critical_time_step("hertz_mindlin", hertz_mindlin.Params(**params), radii,
@@ -464,7 +515,7 @@ def build_gas(comm, deck):
     case = granular.build(comm, pos, radii, s["density"], "hertz_mindlin", params, np.zeros(3),
                           np.full(3, edge), dt, skin(deck, radii),
                           viscous_damping=deck["preparation"]["damping"],
-                          slab_axis="xyz".index(run["slab_axis"]))
+                          slab_axis="xyz".index(run["slab_axis"]), dimension=dim)
     return case
 
 
@@ -552,8 +603,13 @@ def increment(sim, sign, e, tol, check_every, max_steps, progress=None, label=""
             "steps": steps, "unbalanced": b["unbalanced"]}
 
 
-def bulk_modulus(s0, s1, L0, L1):
-    """``K = (p1 - p0) / (-(V1 - V0) / V0)`` [Pa], p = -trace / 3."""
+def bulk_modulus(s0, s1, L0, L1, dim=3):
+    """``K = (p1 - p0) / (-(V1 - V0) / V0)`` [Pa], p = -trace / 3; 2D (``dim = 2``): p = -(s_xx +
+    s_yy) / 2 and the area ``L_x L_y`` instead of V."""
+    if dim == 2:
+        ds = np.asarray(s1) - np.asarray(s0)
+        area = (L1[0] * L1[1]) / (L0[0] * L0[1])
+        return float(-(ds[0, 0] + ds[1, 1]) / 2.0 / -(area - 1.0))
     return float(-np.trace(s1 - s0) / 3.0 / -(np.prod(L1) / np.prod(L0) - 1.0))
 
 
@@ -564,6 +620,7 @@ def shear_modulus(s0, s1, L0, L1):
 
 
 ISOTROPIC, SHEAR = (-1.0, -1.0, -1.0), (1.0, -1.0, 0.0)
+ISOTROPIC_2D = (-1.0, -1.0, 0.0)     # the in-plane bulk increment of a 2D cell
 
 
 def measuring_contacts(sim, material):
@@ -593,7 +650,9 @@ def moduli(sim, deck, strain, progress=None, run=None, resume=False):
         out = {"strain": strain}
         if run is not None:
             run.state["moduli"] = out
-    for name, sign, fn in (("K", ISOTROPIC, bulk_modulus), ("mu", SHEAR, shear_modulus)):
+    dim = sim.cell.dimension
+    bulk = ISOTROPIC_2D if dim == 2 else ISOTROPIC
+    for name, sign, fn in (("K", bulk, lambda *a: bulk_modulus(*a, dim=dim)), ("mu", SHEAR, shear_modulus)):
         if f"{name}_affine" in out:
             continue      # measured before the checkpoint this run resumed from
         if run is not None:
@@ -677,10 +736,24 @@ def sweep(comm, deck, pressures, progress=None, case=None, run=None):
     return rows, details, case
 
 
+def stress_convention(sim):
+    """The stress convention of the run, for the summary: 3D Love-Weber over the cell volume; 2D
+    per unit area of the plane over the thickness (the mean diameter) [m]."""
+    cell = sim.cell
+    if cell.dimension == 2:
+        return {"stress": "Love-Weber sum_c d_i f_j / (L_x L_y t), tension positive [Pa]: per unit area "
+                          "of the plane divided by t, the mean diameter",
+                "thickness": cell.thickness, "pressure": "-(s_xx + s_yy) / 2",
+                "solid_fraction": "disk area minus the lens areas over L_x L_y"}
+    return {"stress": "Love-Weber sum_c d_i f_j / V, tension positive [Pa]", "pressure": "-trace / 3",
+            "solid_fraction": "sphere volume minus the lens volumes over V"}
+
+
 def criteria_text(deck):
     t = deck["equilibrium"]
     return {"kinetic": f"E_k / (N p0 V_mean) < {t['kinetic_tolerance']:g} (V_mean: mean sphere volume)",
             "force": f"mean_k |F_k| / mean_c |f_c| < {t['force_tolerance']:g} (unbalanced contact force "
                      "on the elements over the mean contact force, drag excluded)",
             "pressure": f"|p - p0| / p0 < {t['pressure_tolerance']:g} (preparation only)",
-            "rattlers": "elements with fewer than 4 force-carrying contacts, removed iteratively"}
+            "rattlers": f"elements with fewer than {dimension(deck) + 1} force-carrying contacts, removed "
+                        "iteratively"}

@@ -5,7 +5,9 @@
     mpiexec -n 2 python tests/mpi/watchdog_loop.py TIMEOUT SECONDS [finish-early]
 
 ``finish-early``: rank 1 leaves after 1 s (stops its watchdog) while rank 0 waits in an allreduce
-for ever: the deadlock case.
+for ever: the deadlock case. ``build=B``: before the loop, rank 1 "builds the case" for B seconds
+(no step, its watchdog thread alive) while rank 0 waits for it in an allreduce; prints
+``building``. ``startup=S`` sets ``watchdog.STARTUP_SECONDS``.
 """
 import os
 import sys
@@ -18,9 +20,18 @@ from pardem.parallel.communicator import Communicator
 def main():
     timeout, seconds = float(sys.argv[1]), float(sys.argv[2])
     finish_early = "finish-early" in sys.argv[3:]
+    opts = dict(a.split("=") for a in sys.argv[3:] if "=" in a)
+    if "startup" in opts:
+        watchdog.STARTUP_SECONDS = float(opts["startup"])
     comm = Communicator()
     watchdog.start(comm, timeout)
     print(f"rank {comm.rank} pid {os.getpid()}", flush=True)
+    if "build" in opts:
+        if comm.is_root:
+            print("building", flush=True)
+        if comm.rank == 1:
+            time.sleep(float(opts["build"]))
+        comm.sum(1.0)
     t0, step = time.monotonic(), 0
     while True:
         comm.sum(1.0)          # every rank waits for all the others here

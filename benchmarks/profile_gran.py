@@ -1,0 +1,105 @@
+"""Where a GRAN step spends its time, per kernel and per rank (issue 14, item 5).
+
+    python benchmarks/profile_gran.py [--n 40] [--steps 500] [--repeats 3]
+    mpiexec -n 2 python benchmarks/profile_gran.py --n 40
+
+Builds the GRAN case of ``bench_gran.py``, runs the warm-up, then times ``--steps`` steps of
+``Simulation.run`` with a timer around each piece of ``Simulation.step`` (the wrappers cost about a
+microsecond a call; ``--clock cpu`` times with the process's CPU clock): the first half kick and drift, the second half kick, the contact force loop,
+the slab layer's update (ghost refresh, with its displacement reduction; rebuilds counted apart),
+the single-process rebuild check, the list rebuilds, and the rest (Python between the calls, the
+stability checks of ``run``). The best of ``--repeats`` rounds is reported per piece (a loaded
+machine only adds time), in microseconds per step and as a share of the step.
+"""
+import argparse
+import time
+from collections import defaultdict
+
+import numpy as np
+
+from pardem.engine import contacts as contacts_mod
+from pardem.engine import granular, simulation
+from pardem.parallel import slab_comm
+from pardem.parallel.communicator import Communicator
+
+R, RHO, DT = 0.1e-3, 2500.0, 1e-8
+PARAMS = {"young": 72e9, "poisson": 0.2, "friction": 0.5}
+SPENT = defaultdict(float)
+CLOCK = [time.perf_counter]
+CALLS = defaultdict(int)
+
+
+def timed(name, fn):
+    def wrapper(*a, **k):
+        t0 = CLOCK[0]()
+        try:
+            return fn(*a, **k)
+        finally:
+            SPENT[name] += CLOCK[0]() - t0
+            CALLS[name] += 1
+    return wrapper
+
+
+def instrument():
+    simulation.kick_drift = timed("kick_drift", simulation.kick_drift)
+    simulation.kick = timed("kick", simulation.kick)
+    C = contacts_mod.Contacts
+    C.compute = timed("contact loop", C.compute)
+    C.rebuild = timed("list rebuild (in update)", C.rebuild)
+    C.needs_rebuild = timed("rebuild check", C.needs_rebuild)
+    S = slab_comm.SlabComm
+    S.forward = timed("ghost forward", S.forward)
+    S.update = timed("slab update", S.update)
+    simulation.Simulation.check_stability = timed("stability check", simulation.Simulation.check_stability)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--n", type=int, default=40)
+    p.add_argument("--steps", type=int, default=500)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--clock", choices=["wall", "cpu"], default="wall",
+                   help="cpu: this process's CPU time (steadier on a loaded machine; MPI waits "
+                        "spin, so they count as busy)")
+    args = p.parse_args()
+    CLOCK[0] = time.perf_counter if args.clock == "wall" else time.process_time
+    comm = Communicator()
+    pos, side = granular.simple_cubic(args.n, R, spacing=1.998, jitter=0.0002, seed=12345)
+    case = granular.build(comm, pos, R, RHO, "hertz_mindlin", PARAMS, np.zeros(3), np.full(3, side),
+                          DT, 0.1 * R)
+    sim = case.sim
+    sim.run(100)
+    instrument()
+    best, best_wall = None, np.inf
+    for _ in range(args.repeats):
+        SPENT.clear()
+        CALLS.clear()
+        comm.barrier()
+        t0 = CLOCK[0]()
+        sim.run(args.steps)
+        comm.barrier()
+        wall = CLOCK[0]() - t0
+        if wall < best_wall:
+            best_wall, best = wall, (dict(SPENT), dict(CALLS))
+    spent, calls = best
+    # the slab update contains the forward refresh and any rebuild: split them
+    if "slab update" in spent:
+        spent["slab update (reduction, check)"] = (spent.pop("slab update") - spent.get("ghost forward", 0.0)
+                                                   - spent.get("list rebuild (in update)", 0.0))
+    rows = sorted(spent.items(), key=lambda kv: -kv[1])
+    other = best_wall - sum(spent.values())
+    table = comm.gather((rows, other, best_wall, dict(calls)))
+    if comm.is_root:
+        N = args.n**3
+        print(f"GRAN n = {args.n} ({N} elements), {comm.size} rank(s), {args.steps} steps, best of "
+              f"{args.repeats}: {1e6 * best_wall / args.steps:.1f} us/step, "
+              f"{N * args.steps / best_wall:.3e} element-steps/s")
+        for r, (rows, other, wall, calls) in enumerate(table):
+            print(f"rank {r}:")
+            for name, s in rows + [("rest (Python, run loop)", other)]:
+                print(f"  {name:34s} {1e6 * s / args.steps:9.1f} us/step  {100 * s / wall:5.1f} %"
+                      f"  calls {calls.get(name, '-')}")
+
+
+if __name__ == "__main__":
+    main()
