@@ -4,6 +4,7 @@ or leaves while the other waits: the job ends within the timeout plus a few seco
 line naming the silent rank.
 """
 import pathlib
+import re
 import signal
 import subprocess
 import sys
@@ -23,9 +24,9 @@ def rank_pids_printed(job, timeout=60):
     """{rank: pid} from the loop's ``rank R pid P`` lines (waits until both ranks printed)."""
     ranks, deadline = {}, time.monotonic() + timeout
     while len(ranks) < 2 and time.monotonic() < deadline:
-        for line in list(job.stdout):
-            if line.startswith("rank ") and " pid " in line:
-                ranks[int(line.split()[1])] = int(line.split()[3])
+        # the two ranks print at once: mpiexec may join their lines ("rank 1 pid 11rank 0 pid 12")
+        for r, pid in re.findall(r"rank (\d+) pid (\d+?)(?=rank|\s|$)", "".join(job.stdout)):
+            ranks[int(r)] = int(pid)
         time.sleep(0.1)
     return ranks
 
