@@ -15,6 +15,17 @@ Reach: a cement must not survive a gap as large as the Verlet skin, or a list re
 pair while intact (``pardem.engine.contacts``). Its normal stretch at rupture is at most
 ``sqrt(2 E_th,max / Sn)`` (the energy's normal part alone), so ``cement_contacts`` refuses
 ``sqrt(2 (mean + half_width) / Sn) >= skin``.
+
+Strength: pulled apart along the line of centres (no tangential cement force), a cement of rupture
+energy ``E_th`` breaks at the stretch ``sqrt(2 E_th / Sn)``, i.e. when its tension reaches
+``F* = sqrt(2 Sn E_th)`` [N] once the grains are apart (``tensile_strength``); a tangential load
+lowers it (the energy adds ``|f_ct|^2 / (2 St)``).
+
+2D mode (``pardem.engine.plane``): nothing changes. The cement law is the 3D one; for grains in
+the plane z = 0 (``v_z = w_x = w_y = 0``) every pair normal lies in the plane, so the cement's normal
+and tangential forces lie in it and its torques are along z, and the same calls cement a 2D packing
+(``tests/test_two_d_walls_cement.py``: a 2D run is the 3D run of the planar configuration bit for
+bit, rupture at ``F*``, 1 vs 2 ranks, restart).
 """
 import numpy as np
 
@@ -48,6 +59,12 @@ def thresholds(seed, keys, mean, half_width):
 def max_stretch(params, mean, half_width):
     """Largest normal stretch ``|delta - delta0|`` [m] an intact cement can reach."""
     return float(np.sqrt(2.0 * (float(mean) + float(half_width)) / params.cement_normal))
+
+
+def tensile_strength(params, threshold):
+    """Tension [N] at which a cement of rupture energy ``threshold`` [J] (scalar or array) breaks
+    under a pure normal pull with the grains apart: ``sqrt(2 Sn E_th)``."""
+    return np.sqrt(2.0 * float(params.cement_normal) * np.asarray(threshold, dtype=np.float64))
 
 
 def check(params, mean, half_width, skin):

@@ -89,6 +89,7 @@ class Contacts:
         self.reproducible = REPRODUCIBLE if reproducible is None else bool(reproducible)
         self.xacc = xa.zeros(10)    # exact Love-Weber sums (0-8) and energy (9) of this rank
         self.exact_ready = False    # xacc holds the sums of the last force evaluation
+        self.stress_ready = True    # sums[STRESS] holds the Love-Weber sums of the last evaluation
         self.exact_ok = True        # ... and all its terms were finite
         self.law = law
         self.params = params
@@ -226,7 +227,8 @@ class Contacts:
 
     def compute(self, elements, dt, with_energy=True):
         """Add the contact forces to ``elements.f``, ``elements.t``; returns the energy [J] (NaN
-        when not ``with_energy``: the step's energy is then not computed)."""
+        when not ``with_energy``: the step's energy is then not computed, nor the Love-Weber sums
+        unless a servo reads them: ``stress_ready``)."""
         rate = None
         if self.periodic:
             if self.cell.deforming:
@@ -237,6 +239,7 @@ class Contacts:
         # steps with the energy, LAMMPS' eflag); the other steps keep the cheap register sums
         servo = self.cell is not None and self.cell.servo is not None
         self.exact_ready = False
+        self.stress_ready = True
         if self.reproducible and (with_energy or servo):
             self.xacc[:] = 0
             flag = self.law.compute(self.params, elements, self.i, self.j, self.history, dt,
@@ -248,9 +251,11 @@ class Contacts:
             self.sums[STRESS] = local[:9]     # this rank's share, rounded once (writers, checks)
             self.energy = float(local[9]) if with_energy else float("nan")
             return self.energy
+        self.stress_ready = bool(with_energy or servo)
         self.energy = float(self.law.compute(self.params, elements, self.i, self.j, self.history,
                                              dt, self.shift, rate, self.sums,
-                                             with_energy=with_energy))
+                                             with_energy=with_energy,
+                                             with_stress=self.stress_ready))
         return self.energy
 
     @property
@@ -266,6 +271,10 @@ class Contacts:
         if self.reproducible and self.exact_ready:   # the same on every rank
             out = exact_sum.total(comm, self.xacc, self.exact_ok)
             return out[:9], float(out[9])
+        if not self.stress_ready:
+            raise RuntimeError("the Love-Weber sums were not computed at the last step (a step "
+                               "without the energy, Simulation.step(with_energy=False)); compute "
+                               "the forces with the energy before reading the stress")
         out = np.asarray(comm.sum(np.concatenate([self.sums[STRESS], [self.energy]])))
         return out[:9], float(out[9])
 

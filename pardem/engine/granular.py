@@ -177,7 +177,13 @@ def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, 
 def checkpoint_payload(case, attrs=None):
     """(groups, series, attrs) for ``checkpoint.write_checkpoint`` (every rank): the case's state
     (``pardem.engine.snapshot.payload``), its constants and the caller's ``attrs``."""
-    groups, attrs = snapshot.payload(case.sim, {"deck": {"kind": "granular"}, "constants": case.constants,
+    from pardem.engine.walls import Walls
+    p = case.sim.plates
+    if p is not None and not isinstance(p, Walls):
+        raise ValueError("granular.write saves the walls of add_walls only (a compression test's plates are "
+                         "saved by its protocol)")
+    constants = case.constants if p is None else {**case.constants, "walls": snapshot.wall_attrs(p)}
+    groups, attrs = snapshot.payload(case.sim, {"deck": {"kind": "granular"}, "constants": constants,
                                                 "slab_axis": case.constants["slab_axis"], **(attrs or {})})
     return groups, {}, attrs
 
@@ -204,9 +210,12 @@ def restore(comm, path, slab_axis=None, meta=None):
     parts = snapshot.read(comm, path, meta, int(c["slab_axis"]), contacts=contacts,
                           slab_comm=lambda slabs: SlabComm(comm, slabs, c["reach"], c["skin"],
                                                            balance_every=c["balance_every"], cell=cell))
-    sim = Simulation(comm, parts.elements, parts.bonds, None, c["dt"], domain=parts.domain,
+    walls = snapshot.walls_of(c.pop("walls", None))
+    sim = Simulation(comm, parts.elements, parts.bonds, walls, c["dt"], domain=parts.domain,
                      contacts=contacts, cell=cell, viscous_damping=c["viscous_damping"])
     if int(c.get("dimension", 3)) == 2:
         sim.fixes.append(PlaneConstraint(0.0))
     snapshot.resume(sim, meta, parts.same)
+    if walls is not None:
+        walls.move_to(sim.time)
     return GranularCase(sim=sim, constants=c)

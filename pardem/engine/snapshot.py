@@ -233,6 +233,29 @@ def _init_fields(params):
     return {f.name: getattr(params, f.name) for f in fields(params) if f.init}
 
 
+def wall_attrs(walls):
+    """The API walls (``pardem.engine.walls.Walls``) as JSON-able attributes, or None."""
+    if walls is None:
+        return None
+    return {"normals": walls.normals.tolist(), "offsets0": walls.offsets0.tolist(),
+            "velocities": walls.velocities.tolist(), "time0": walls.time0, "law": _init_fields(walls.law)}
+
+
+def walls_of(attrs):
+    """The ``Walls`` of ``wall_attrs`` (exactly the stored planes), or None; call ``move_to(sim.time)``
+    once the run's clock is restored."""
+    if attrs is None:
+        return None
+    from pardem.engine.walls import Walls
+    from pardem.physics import walls as wall_kernels
+    normals = np.asarray(attrs["normals"])
+    walls = Walls(normals, normals * np.asarray(attrs["offsets0"])[:, None], wall_kernels.Params(**attrs["law"]),
+                  attrs["velocities"], time0=attrs["time0"])
+    walls.normals = np.ascontiguousarray(normals, dtype=np.float64)
+    walls.offsets0 = np.asarray(attrs["offsets0"], dtype=np.float64)
+    return walls
+
+
 def system_attrs(sim):
     """What ``load`` needs to rebuild ``sim``'s parts besides the arrays (JSON-able, every rank)."""
     from pardem.engine.walls import Walls
@@ -254,9 +277,7 @@ def system_attrs(sim):
             "bonds": (sim.bonds if sim.bonds is not None else Bonds.empty()).flags(),
             "contacts": None if c is None else {"law": law, "params": _init_fields(c.params), "skin": c.skin,
                                                 "reach": c.cut},
-            "walls": None if p is None else {"normals": p.normals.tolist(), "offsets0": p.offsets0.tolist(),
-                                             "velocities": p.velocities.tolist(), "time0": p.time0,
-                                             "law": _init_fields(p.law)},
+            "walls": wall_attrs(p),
             "slab": None if d is None else {"ghost_range": d.ghost_range, "skin": d.skin,
                                             "balance_every": d.balance_every, "threshold": d.threshold,
                                             "balance_by": d.balance_by}}
@@ -278,9 +299,7 @@ def load(comm, path, slab_axis=None):
     bit for bit on the rank count that wrote it). ``slab_axis`` re-cuts the slabs along another axis."""
     from pardem.engine.contacts import Contacts
     from pardem.engine.simulation import Simulation
-    from pardem.engine.walls import Walls
     from pardem.parallel.slab_comm import SlabComm
-    from pardem.physics import walls as wall_kernels
     from pardem.physics.contact_laws import LAWS, law_params
     meta = checkpoint.inspect(path, comm=comm)     # collective: every byte verified
     s = meta["constants"]
@@ -298,14 +317,7 @@ def load(comm, path, slab_axis=None):
                  slab_comm=lambda slabs: SlabComm(comm, slabs, sl["ghost_range"], sl["skin"],
                                                   balance_every=sl["balance_every"], threshold=sl["threshold"],
                                                   balance_by=sl["balance_by"], cell=cell))
-    walls = None
-    if s["walls"] is not None:
-        w = s["walls"]
-        normals = np.asarray(w["normals"])
-        walls = Walls(normals, normals * np.asarray(w["offsets0"])[:, None], wall_kernels.Params(**w["law"]),
-                      w["velocities"], time0=w["time0"])
-        walls.normals = np.ascontiguousarray(normals, dtype=np.float64)   # exactly the stored planes
-        walls.offsets0 = np.asarray(w["offsets0"], dtype=np.float64)
+    walls = walls_of(s["walls"])
     sim = Simulation(comm, parts.elements, parts.bonds, walls, s["dt"], max_speed=s["max_speed"],
                      check_every=s["check_every"], domain=parts.domain, contacts=contacts, cell=cell,
                      viscous_damping=s["viscous_damping"])

@@ -20,7 +20,17 @@ step with the walls' stiffness (``pardem.engine.builders.critical_time_step``).
 
 After each step, ``walls.forces(sim.comm)`` [n_walls, 3] [N] is the total force of the elements
 **on** each wall (collective); ``walls.normal_forces(comm)`` [n_walls] its compressive part
-``-F . n`` (positive when the elements push the wall).
+``-F . n`` (positive when the elements push the wall). Each element's wall load depends on that
+element alone, so the trajectories are the same bits on any number of ranks (with reproducible
+contacts); the total is a floating-point sum over the rows, then over the ranks, so it agrees
+between decompositions to the round-off of that sum (about ``n eps sum_k |F_k|``), not bit for bit.
+
+Domain (``check_domain``, at ``add_walls``): in a cell no wall normal may have a component along a
+periodic axis (elements would wrap through the wall). In the 2D mode (``pardem.engine.plane``) a
+wall is a line of the plane z = 0: its normal and its velocity have no z component. The kernel is
+the 3D one; for grains in the plane (``v_z = w_x = w_y = 0``) the contact point, the relative
+velocity, the friction force lie in the plane and the torque is along z, so a 2D run with walls is
+the 3D run of the same planar configuration bit for bit (``tests/test_two_d_walls_cement.py``).
 """
 import math
 
@@ -97,7 +107,8 @@ class Walls:
         return self.normals * self.offsets[:, None]
 
     def forces(self, comm):
-        """Total force of the elements on each wall [n_walls, 3] [N] at the last step (collective)."""
+        """Total force of the elements on each wall [n_walls, 3] [N] at the last step (collective;
+        a float sum, so decompositions agree to its round-off: module docstring)."""
         return np.asarray(comm.sum(self.wall_force)).reshape(-1, 3)
 
     def normal_forces(self, comm):
@@ -144,6 +155,7 @@ def add_walls(sim, normals, points, velocities=None, law="linear", check_dt=True
     if isinstance(law, wall_kernels.Params) and law_keywords:
         raise ValueError(f"law is already a walls.Params: the keywords {sorted(law_keywords)} are not used")
     w = Walls(normals, points, params, velocities, time0=sim.step_count * sim.dt)
+    check_domain(sim, w)
     if check_dt:
         from pardem.engine.builders import critical_time_step
         dt_c = critical_time_step(sim, walls=w)
@@ -158,9 +170,32 @@ def add_walls(sim, normals, points, velocities=None, law="linear", check_dt=True
     return w
 
 
+def check_domain(sim, walls):
+    """ValueError (naming the wall) unless every wall of ``walls`` fits ``sim``'s domain: no normal
+    component along a periodic axis of ``sim.cell``; in the 2D mode, normals and velocities with no
+    z component (a wall is a line of the plane z = 0)."""
+    from pardem.engine.plane import dimension_of
+    n, v = walls.normals, walls.velocities
+    if dimension_of(sim) == 2:
+        for name, arr, unit in (("normals", n, ""), ("velocities", v, " [m/s]")):
+            bad = np.nonzero(arr[:, 2] != 0.0)[0]
+            if len(bad):
+                k = int(bad[0])
+                raise ValueError(f"{name}[{k}] = {arr[k].tolist()}{unit}: in 2D a wall is a line of the "
+                                 "plane z = 0, its z component must be 0")
+    cell = getattr(sim, "cell", None)
+    if cell is not None and np.any(cell.periodic):
+        bad = np.nonzero(np.any(n[:, cell.periodic] != 0.0, axis=1))[0]
+        if len(bad):
+            k = int(bad[0])
+            axes = "".join("xyz"[a] for a in range(3) if cell.periodic[a])
+            raise ValueError(f"normals[{k}] = {n[k].tolist()}: a wall normal must have no component "
+                             f"along the cell's periodic axes ({axes}): elements would wrap through it")
+
+
 def _max_radius(sim):
     e = sim.elements
     return float(sim.comm.max(float(e.radius[:e.n_owned].max()) if e.n_owned else 0.0))
 
 
-__all__ = ["Walls", "add_walls", "wall_law"]
+__all__ = ["Walls", "add_walls", "wall_law", "check_domain"]

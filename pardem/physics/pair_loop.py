@@ -97,7 +97,8 @@ def _relative_motion(dv0, dv1, dv2, wi0, wi1, wi2, wj0, wj1, wj2, n0, n1, n2, li
 
 
 @lru_cache(maxsize=None)
-def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exact=False):
+def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exact=False,
+              with_stress=True):
     """The compiled neighbour-list kernel of one law function and loop choice (built once).
 
     ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, c, n_owned, acc, xacc)``
@@ -107,6 +108,9 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     (0 unless ``with_energy``: its arithmetic is then left out, 8 % of the loop). ``shift``
     [n_pairs, 3] [m] and the cell's diagonal strain rate ``rate`` [3] [1/s] are read only when
     ``periodic`` and ``deforming``; ``c`` is the law's constants tuple.
+
+    ``with_stress``: add the nine Love-Weber sums to ``acc`` (else only the contact count: the
+    steps nothing reads the stress on skip their arithmetic, LAMMPS' vflag; implied by ``exact``).
 
     ``exact`` (reproducible runs): the nine Love-Weber sums and the energy are instead added
     exactly, term by term, into ``xacc`` [10, NLIMB] int64 (``physics.exact_accumulate``, rows
@@ -118,7 +122,10 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     inputs (branch vector, radii, ``v_i - v_j``, ``w_i``, ``w_j``, history row, masses) into
     block arrays, a pass with no indirect access runs the law over the block (LLVM vectorises it:
     four pairs per AVX2 instruction, so the long chain of square roots and divisions of one pair
-    no longer bounds the loop), and a scatter pass adds the loads in pair order. Every value is
+    no longer bounds the loop), and a scatter pass adds the loads in pair order. The scatter keeps
+    the i-side load of a run of pairs with the same ``i`` in registers (loaded once, stored when
+    ``i`` changes): the additions are the same, in the same order, since no other pair of the
+    run touches row ``i`` (a pair with ``j == i``, a self image, flushes first). Every value is
     computed by the same operations as the one-pair kernel of ``all_pairs_loop`` and ``single``,
     and the loads, sums and energy are added in the same order, so the results are the same bits
     (``tests/test_contacts.py`` compares them); 1.5x faster than one pair at a time on GRAN.
@@ -127,14 +134,25 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     masses); a law must not use them for anything else.
     """
     pair = _pair(forces, engaged, bool(deforming))
-    return _jit(_list_loop(bool(periodic), bool(deforming), bool(with_energy), bool(exact)), pair,
+    return _jit(_list_loop(bool(periodic), bool(deforming), bool(with_energy), bool(exact),
+                           bool(with_stress) or bool(exact)), pair,
                 _name(forces, engaged), forces=forces, engaged=engaged)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _store_row(f, t, row, f0, f1, f2, t0, t1, t2):
+    f[row, 0] = f0
+    f[row, 1] = f1
+    f[row, 2] = f2
+    t[row, 0] = t0
+    t[row, 1] = t1
+    t[row, 2] = t2
 
 
 NO_XACC = np.zeros((10, NLIMB), dtype=np.int64)   # the exact accumulator of loops without ``exact``
 
 
-def _list_loop(periodic, deforming, with_energy, exact):
+def _list_loop(periodic, deforming, with_energy, exact, with_stress):
     B = BLOCK
 
     def loop(pi, pj, shift, rate, x, v, w, radius, mass, f, t, hist, dt, c, n_owned, acc, xacc):
@@ -155,6 +173,8 @@ def _list_loop(periodic, deforming, with_energy, exact):
         hT = hb.T                    # [B, width], unit stride along the block
         mb = np.empty(2 * B)         # masses of the i ends, then of the j ends
         n_pairs = pi.shape[0]
+        cur = -1                     # the row whose i-side loads are in fi, ti
+        fi0 = fi1 = fi2 = ti0 = ti1 = ti2 = 0.0
         for p0 in range(0, n_pairs, B):
             m = min(B, n_pairs - p0)
             for k in range(m):       # gather
@@ -233,19 +253,29 @@ def _list_loop(periodic, deforming, with_energy, exact):
                 o0 = res[0, k]
                 o1 = res[1, k]
                 o2 = res[2, k]
-                # as pair_loads.scatter_pair
-                f[i, 0] += o0
-                f[i, 1] += o1
-                f[i, 2] += o2
-                f[j, 0] -= o0
-                f[j, 1] -= o1
-                f[j, 2] -= o2
-                t[i, 0] += res[3, k]
-                t[i, 1] += res[4, k]
-                t[i, 2] += res[5, k]
-                t[j, 0] += res[6, k]
-                t[j, 1] += res[7, k]
-                t[j, 2] += res[8, k]
+                if i != cur:         # a new run: store the last one's i-side, load this one's
+                    if cur >= 0:
+                        _store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
+                    cur = i
+                    fi0, fi1, fi2 = f[i, 0], f[i, 1], f[i, 2]
+                    ti0, ti1, ti2 = t[i, 0], t[i, 1], t[i, 2]
+                if j == cur:         # a self image (tiny periodic cell): both ends in memory
+                    _store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
+                    cur = -1
+                    scatter_pair(i, j, f, t, res[:9, k])
+                else:                # as pair_loads.scatter_pair, the i-side in registers
+                    fi0 += o0
+                    fi1 += o1
+                    fi2 += o2
+                    f[j, 0] -= o0
+                    f[j, 1] -= o1
+                    f[j, 2] -= o2
+                    ti0 += res[3, k]
+                    ti1 += res[4, k]
+                    ti2 += res[5, k]
+                    t[j, 0] += res[6, k]
+                    t[j, 1] += res[7, k]
+                    t[j, 2] += res[8, k]
                 if i < n_owned:   # counted once over the ranks (the owner of the lower gid)
                     b0 = gat[0, k]
                     b1 = gat[1, k]
@@ -266,6 +296,8 @@ def _list_loop(periodic, deforming, with_energy, exact):
                         continue
                     if with_energy:
                         energy += res[9, k]
+                    if not with_stress:
+                        continue
                     a00 += b0 * o0
                     a01 += b0 * o1
                     a02 += b0 * o2
@@ -275,6 +307,8 @@ def _list_loop(periodic, deforming, with_energy, exact):
                     a20 += b2 * o0
                     a21 += b2 * o1
                     a22 += b2 * o2
+        if cur >= 0:
+            _store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
         add_love_weber(acc, a00, a01, a02, a10, a11, a12, a20, a21, a22, count)
         if exact:
             exact_normalize(xacc)  # noqa: F821
@@ -361,7 +395,7 @@ def law_interface(pair_function, constants, history_width):
     ``history_width(params) -> int`` (see the module docstring)."""
 
     def compute(params, elements, i, j, history, dt, shift=None, rate=None, acc=None,
-                with_energy=True, xacc=None):
+                with_energy=True, xacc=None, with_stress=True):
         """Add the contact forces of the pairs ``(i[p], j[p])`` to ``elements.f``/``elements.t``.
 
         i, j : [n_pairs] rows (ordered by gid within each pair); history : [n_pairs, width]
@@ -373,14 +407,15 @@ def law_interface(pair_function, constants, history_width):
         ``with_energy``: the loop then does not compute it). xacc : optional [10, NLIMB] int64
         exact accumulator (reproducible runs, ``pair_loop``'s ``exact``): the Love-Weber sums and
         the energy go there, exactly (added to), ``acc`` gets the contact count only, and the
-        return value is 0 (NaN on a non-finite term).
+        return value is 0 (NaN on a non-finite term). with_stress False: ``acc`` gets the
+        contact count only (the Love-Weber sums are left out; ignored with ``xacc``).
         """
         e = elements
         check_pairs(i, j, history, shift, history_width(params))
         forces, engaged = pair_function(params)
         loop = pair_loop(forces, engaged, shift is not None,
                          rate is not None and bool(np.any(rate != 0.0)), bool(with_energy),
-                         xacc is not None)
+                         xacc is not None, bool(with_stress))
         energy = loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
                       e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history, float(dt),
                       constants(params, dt), e.n_owned, np.zeros(10) if acc is None else acc,

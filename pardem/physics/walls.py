@@ -48,6 +48,10 @@ it at half the element's drilling spin, which a wall that does not rotate has no
 Loads on the element: ``F = fn n + ft`` and torque about its centre ``T = -l n x ft``; the wall
 receives ``-F`` at ``x_c`` (no couple), so element and wall balance about the contact point.
 
+2D mode: nothing special here. For an element in the plane z = 0 (``v_z = w_x = w_y = 0``) and
+a wall whose normal and velocity have no z component (``pardem.engine.walls.check_domain``), ``u``,
+``ft`` and ``F`` lie in the plane and ``T`` is along z, so the 2D run is the 3D one bit for bit.
+
 History
 -------
 ``history`` [n_rows, n_walls, 3] float64, indexed by element row (it migrates with the element
