@@ -1,13 +1,17 @@
-"""Independent NumPy helpers for the tests: quaternions, rotations, small bonded systems.
+"""Independent NumPy helpers for the tests: quaternions, rotations, small bonded systems, the free
+oscillation of a bonded pair and its logarithmic decrement.
 
-Nothing here calls pardem's quaternion code, so tests can compare pardem against it.
+Nothing here calls pardem's quaternion code, so tests can compare pardem against it (``free_oscillation``
+runs pardem's time loop: it is the system under test, its measures are this module's).
 """
 
 import numpy as np
 
 from pardem.engine.bonding import BeamMaterial, make_bonds
+from pardem.engine.simulation import Simulation
+from pardem.parallel.communicator import Communicator
 from pardem.physics.beam import compute_bonds
-from pardem.engine.state import Elements
+from pardem.engine.state import Elements, Plates
 
 
 def quat(rotvec):
@@ -55,6 +59,12 @@ def perpendicular(n, rng):
     return p / np.linalg.norm(p)
 
 
+def relative_rotation(e, axis, k1=0, k2=1):
+    """Angle [rad] about unit ``axis`` of the relative rotation q_k2 q_k1^-1 of two elements."""
+    qr = qmul(e.q[k2], e.q[k1] * np.array([1.0, -1.0, -1.0, -1.0]))
+    return 2.0 * np.arctan2(qr[1:] @ axis, qr[0])
+
+
 def rotate_element(e, k, rotvec):
     """Rotate element ``k`` by the world-frame rotation ``rotvec`` (q <- exp(rotvec) q)."""
     e.q[k] = qmul(quat(rotvec), e.q[k])
@@ -93,6 +103,47 @@ def beam_constants(R1, R2, young, radius_ratio, poisson):
     """Independent textbook section constants: (S, I, I0, G) of the bond."""
     r = radius_ratio * 0.5 * (R1 + R2)
     return np.pi * r**2, np.pi * r**4 / 4.0, np.pi * r**4 / 2.0, young / (2.0 * (1.0 + poisson))
+
+
+def reduced(a, b):
+    """The reduced mass (or inertia) a b / (a + b) of two bodies."""
+    return a * b / (a + b)
+
+
+def free_oscillation(e, b, omega_d, measure, periods=4.5, per_period=400):
+    """Run the free bonded pair ``e``, ``b`` (plates far away) for ``periods`` periods of the damped
+    angular frequency ``omega_d`` [rad/s], ``per_period`` steps each; returns ``measure(elements)``
+    at the start and after every step [n_steps + 1], and the time step dt [s]."""
+    dt = 2 * np.pi / omega_d / per_period
+    sim = Simulation(Communicator(), e, b, Plates.pair(0, -1.0, 1.0, 0.0, 1.0), dt)
+    out = [measure(e)]
+
+    class Record:
+        every = 1
+
+        def __call__(self, sim):
+            out.append(measure(sim.elements))
+
+    sim.run(int(periods * per_period), operations=[Record()])
+    return np.array(out), dt
+
+
+def log_decrement_ratio(s):
+    """Damping ratio from the mean logarithmic decrement delta of the maxima of the decaying signal
+    ``s`` (peaks refined by a parabola through three samples): zeta = delta / sqrt(4 pi^2 + delta^2)."""
+    k = np.nonzero((s[1:-1] > s[:-2]) & (s[1:-1] >= s[2:]))[0] + 1
+    peaks = s[k] - 0.125 * (s[k + 1] - s[k - 1]) ** 2 / (s[k - 1] - 2 * s[k] + s[k + 1])
+    assert len(peaks) >= 3
+    delta = np.mean(np.log(peaks[:-1] / peaks[1:]))
+    return delta / np.sqrt(4 * np.pi**2 + delta**2)
+
+
+def has_matplotlib():
+    try:
+        import matplotlib  # noqa: F401
+        return True
+    except ImportError:
+        return False
 
 
 class FakeComm:

@@ -10,11 +10,8 @@ oscillator (reduced mass / reduced inertia, c = 2 zeta sqrt(k m*)).
 import numpy as np
 import pytest
 
-from pardem.parallel.communicator import Communicator
-from pardem.engine.simulation import Simulation
-from pardem.engine.state import Plates
-from _util import (beam_constants, loads, perpendicular, qmul, quat, random_rotvec, random_unit,
-                   rotate_element, rotmat, two_elements)
+from _util import (beam_constants, free_oscillation, loads, log_decrement_ratio, perpendicular, qmul, quat,
+                   random_rotvec, random_unit, reduced, relative_rotation, rotate_element, rotmat, two_elements)
 
 R1, R2 = 1.0e-3, 1.5e-3
 L0 = R1 + R2
@@ -249,33 +246,6 @@ def test_forces_are_minus_energy_gradient():
         np.testing.assert_allclose(t, -grad_r, atol=2e-3 * ts)
 
 
-def _log_decrement_ratio(s):
-    """Damping ratio from the mean logarithmic decrement of the maxima of ``s`` (parabolic peaks)."""
-    k = np.nonzero((s[1:-1] > s[:-2]) & (s[1:-1] >= s[2:]))[0] + 1
-    peaks = np.array([s[i] - 0.125 * (s[i + 1] - s[i - 1]) ** 2 / (s[i - 1] - 2 * s[i] + s[i + 1])
-                      for i in k])
-    assert len(peaks) >= 3
-    delta = np.mean(np.log(peaks[:-1] / peaks[1:]))
-    return delta / np.sqrt(4 * np.pi**2 + delta**2)
-
-
-def _free_oscillation(e, b, omega_d, measure, periods=4.5, per_period=400):
-    """Run the free pair (plates far away) and return ``measure(elements)`` at every step and dt."""
-    dt = 2 * np.pi / omega_d / per_period
-    far = Plates.pair(0, -1.0, 1.0, 0.0, 1.0)
-    sim = Simulation(Communicator(), e, b, far, dt)
-    out = [measure(e)]
-
-    class Record:
-        every = 1
-
-        def __call__(self, sim):
-            out.append(measure(sim.elements))
-
-    sim.run(int(periods * per_period), operations=[Record()])
-    return np.array(out), dt
-
-
 def _assert_damped_release(s, dt, A, omega, zeta):
     """The signal ``s`` follows the damped oscillator released from rest at ``A``, and its
     logarithmic decrement gives back the damping ratio."""
@@ -284,22 +254,25 @@ def _assert_damped_release(s, dt, A, omega, zeta):
     exact = A * np.exp(-zeta * omega * t) * (np.cos(omega_d * t)
                                               + zeta / np.sqrt(1 - zeta**2) * np.sin(omega_d * t))
     assert np.abs(s - exact).max() < 0.02 * A
-    assert _log_decrement_ratio(s) == pytest.approx(zeta, rel=0.03)
+    assert log_decrement_ratio(s) == pytest.approx(zeta, rel=0.03)
+
+
+def _random_axis_pair(seed, zeta):
+    """(n, elements, bonds): the R1-R2 pair bonded along a random unit ``n``, damping ratio ``zeta``."""
+    n = random_unit(np.random.default_rng(seed))
+    return (n, *two_elements(n, R1, R2, YOUNG, RR, NU, zeta))
 
 
 @pytest.mark.parametrize("zeta", [0.05, 0.2])
 def test_axial_damping_ratio(zeta):
     """Free pair, axial release: decay and frequency of the damped oscillator with m* and c."""
-    rng = np.random.default_rng(8)
-    n = random_unit(rng)
-    e, b = two_elements(n, R1, R2, YOUNG, RR, NU, zeta)
-    m_red = e.mass[0] * e.mass[1] / (e.mass[0] + e.mass[1])
-    ka = YOUNG * S / L0
-    omega = np.sqrt(ka / m_red)
-    omega_d = omega * np.sqrt(1.0 - zeta**2)
+    n, e, b = _random_axis_pair(8, zeta)
+    m_red = reduced(e.mass[0], e.mass[1])
+    omega = np.sqrt(YOUNG * S / L0 / m_red)
     A = 1e-5 * L0
     e.x[1] += A * n
-    s, dt = _free_oscillation(e, b, omega_d, lambda el: np.linalg.norm(el.x[1] - el.x[0]) - L0)
+    s, dt = free_oscillation(e, b, omega * np.sqrt(1.0 - zeta**2),
+                             lambda el: np.linalg.norm(el.x[1] - el.x[0]) - L0)
     _assert_damped_release(s, dt, A, omega, zeta)
     # the total momentum of the free pair stays zero
     p = (e.mass[:, None] * e.v).sum(axis=0)
@@ -309,22 +282,12 @@ def test_axial_damping_ratio(zeta):
 @pytest.mark.parametrize("zeta", [0.05, 0.2])
 def test_twist_damping_ratio(zeta):
     """Free pair, released twisted: torsional oscillator with reduced inertia and G I0 / L0."""
-    rng = np.random.default_rng(9)
-    n = random_unit(rng)
-    e, b = two_elements(n, R1, R2, YOUNG, RR, NU, zeta)
-    i_red = e.inertia[0] * e.inertia[1] / (e.inertia[0] + e.inertia[1])
-    omega = np.sqrt(G * I0 / L0 / i_red)
-    omega_d = omega * np.sqrt(1.0 - zeta**2)
+    n, e, b = _random_axis_pair(9, zeta)
+    omega = np.sqrt(G * I0 / L0 / reduced(e.inertia[0], e.inertia[1]))
     A = 1e-5
     rotate_element(e, 1, A * n)
-
-    def twist(el):
-        # relative rotation q2 q1^-1 as a rotation vector, component along n
-        q1c = el.q[0] * np.array([1.0, -1.0, -1.0, -1.0])
-        qr = qmul(el.q[1], q1c)
-        return 2.0 * np.arctan2(qr[1:] @ n, qr[0])
-
-    s, dt = _free_oscillation(e, b, omega_d, twist)
+    # the twist: the relative rotation q2 q1^-1 about n
+    s, dt = free_oscillation(e, b, omega * np.sqrt(1.0 - zeta**2), lambda el: relative_rotation(el, n))
     _assert_damped_release(s, dt, A, omega, zeta)
     # pure twist: no force, the centres stay put
     assert np.abs(e.x - e.x0).max() < 1e-12 * L0
@@ -343,22 +306,16 @@ def test_bending_damping_ratio():
     A = 1e-5
     rotate_element(e, 0, -0.5 * A * axis)
     rotate_element(e, 1, 0.5 * A * axis)
-    i_red = e.inertia[0] * e.inertia[1] / (e.inertia[0] + e.inertia[1])
     _, I_b, _, _ = beam_constants(R1, R1, YOUNG, RR, NU)
-    omega = np.sqrt(YOUNG * I_b / (2 * R1) / i_red)
-
-    def relative_rotation(el):
-        qr = qmul(el.q[1], el.q[0] * np.array([1.0, -1.0, -1.0, -1.0]))
-        return 2.0 * np.arctan2(qr[1:] @ axis, qr[0])
-
-    s, dt = _free_oscillation(e, b, omega * np.sqrt(1 - zeta**2), relative_rotation)
+    omega = np.sqrt(YOUNG * I_b / (2 * R1) / reduced(e.inertia[0], e.inertia[1]))
+    s, dt = free_oscillation(e, b, omega * np.sqrt(1 - zeta**2), lambda el: relative_rotation(el, axis))
     # the mode's stiffness and inertia are E I / L0 and i*: it oscillates at about omega
     # (omega_d / omega > 0.979 for any zeta <= 0.2), and the centres stay put
     crossings = np.nonzero(np.sign(s[1:]) != np.sign(s[:-1]))[0]
     half_period = np.mean(np.diff(crossings)) * dt
     assert half_period == pytest.approx(np.pi / omega, rel=0.03)
     assert np.abs(e.x - e.x0).max() < 1e-12 * R1
-    measured = _log_decrement_ratio(s)
+    measured = log_decrement_ratio(s)
     assert measured == pytest.approx(zeta, rel=0.05), (
         f"bending mode damping ratio {measured:.4f}, expected zeta = {zeta} "
         f"(half period {half_period:.4e} s)")

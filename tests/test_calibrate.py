@@ -16,6 +16,7 @@ from pardem.drivers import calibrate
 from pardem.drivers.cli import EXIT_NOT_MEASURED
 from pardem.parallel.communicator import Communicator
 from pardem.protocols.shear import run_shear
+from _util import has_matplotlib
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -164,6 +165,18 @@ def test_shear_test_measures_the_lattice_modulus_one_rank():
         assert r["shear_modulus"] == pytest.approx(G, rel=0.01), plane
 
 
+def refused(tmp_path, capsys, *args):
+    """The driver run in-process with ``args`` and ``--out tmp_path/x`` exits 2 with one line on
+    stderr (returned) and writes nothing."""
+    with pytest.raises(SystemExit) as exit_info:
+        calibrate.main(["--out", str(tmp_path / "x"), "--quiet", *args])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert not (tmp_path / "x").exists()       # nothing was written
+    return err
+
+
 @pytest.mark.parametrize("override, field", [
     ("targets.shear=1e12", "targets.shear"),                 # r_T would exceed R_MAX
     ("targets.young_L=-5e9", "targets.young_L"),
@@ -176,12 +189,8 @@ def test_shear_test_measures_the_lattice_modulus_one_rank():
     ("targets.colour=1", "targets.colour"),
 ])
 def test_bad_targets_exit_2_naming_the_field(tmp_path, capsys, override, field):
-    with pytest.raises(SystemExit) as exit_info:
-        calibrate.main(["--config", BEECH, "--set", override, "--out", str(tmp_path / "x"), "--quiet"])
-    assert exit_info.value.code == 2
-    err = capsys.readouterr().err
-    assert field in err and ("expected" in err or "allowed" in err) and err.count("\n") == 1
-    assert not (tmp_path / "x").exists()       # nothing was written
+    err = refused(tmp_path, capsys, "--config", BEECH, "--set", override)
+    assert field in err and ("expected" in err or "allowed" in err)
 
 
 def test_shear_limit_message_gives_the_range():
@@ -271,19 +280,11 @@ def test_quick_verification_on_two_ranks(tmp_path):
     assert g["gamma"][-1] == pytest.approx(v["runs"]["shear_LT"]["gamma"], rel=1e-12)
     assert read_series_h5(str(out / "series" / "shear_LT.h5"))["stress"][-1] == pytest.approx(g["stress"][-1])
     assert len((out / "records" / "rank-0.jsonl").read_text().splitlines()) == 6
-    if _has_matplotlib():
+    if has_matplotlib():
         assert (out / "calibration.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # the written deck is the compress driver's
     deck = load_deck(COMPRESS_SCHEMA, str(out / calibrate.DECK_NAME))
     assert np.allclose(deck["domain"]["box"], [0.01] * 3)
-
-
-def _has_matplotlib():
-    try:
-        import matplotlib  # noqa: F401
-        return True
-    except ImportError:
-        return False
 
 
 @pytest.mark.slow
@@ -482,7 +483,7 @@ def test_compact_calibration_converges_from_a_far_start_on_two_ranks(compact_run
                                                            rel=1e-12)
     for h in hist:
         assert h["sensitivity_E_row_sums"] == pytest.approx([1.0] * 4, abs=1e-9)
-    assert (two / calibrate.HISTORY_PLOT).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" or not _has_matplotlib()
+    assert (two / calibrate.HISTORY_PLOT).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" or not has_matplotlib()
     assert "calibrated: every mean modulus within 2 %" in p.stdout
 
 
@@ -545,21 +546,13 @@ def test_compact_calibrated_deck_measures_the_targets_independently(compact_runs
     ("domain.box=[0.001, 0.0045, 0.0045]", "domain.box"),
 ])
 def test_bad_compact_keys_exit_2_naming_the_field(tmp_path, capsys, override, field):
-    with pytest.raises(SystemExit) as exit_info:
-        calibrate.main(["--out", str(tmp_path / "x"), "--quiet", *_compact_args(override)])
-    assert exit_info.value.code == 2
-    err = capsys.readouterr().err
-    assert field in err and "expected" in err and err.count("\n") == 1, err
-    assert not (tmp_path / "x").exists()
+    err = refused(tmp_path, capsys, *_compact_args(override))
+    assert field in err and "expected" in err, err
 
 
 def test_verify_is_refused_for_a_compact_domain(tmp_path, capsys):
-    with pytest.raises(SystemExit) as exit_info:
-        calibrate.main(["--out", str(tmp_path / "x"), "--quiet", "--verify", *_compact_args()])
-    assert exit_info.value.code == 2
-    err = capsys.readouterr().err
-    assert "--verify" in err and "compact" in err and err.count("\n") == 1
-    assert not (tmp_path / "x").exists()
+    err = refused(tmp_path, capsys, "--verify", *_compact_args())
+    assert "--verify" in err and "compact" in err
 
 
 @pytest.mark.slow

@@ -23,10 +23,8 @@ pair's rotary inertia), so ``omega_s^2 = 12 kb / L0 (1 / (2 I) + 1 / (m* L0^2))`
 import numpy as np
 import pytest
 
-from pardem.engine.simulation import Simulation
-from pardem.engine.state import Plates
-from pardem.parallel.communicator import Communicator
-from _util import beam_constants, loads, quat, qmul, rotate_element, two_elements
+from _util import (free_oscillation, loads, log_decrement_ratio, reduced, relative_rotation, rotate_element,
+                   two_elements)
 
 YOUNG, RR, NU = 2.0e9, 0.6, 0.3
 
@@ -147,9 +145,8 @@ def test_modal_damping_ratios_of_an_unequal_pair(r2):
     M, K, C = linear_matrices(e, b)
     omega, ratio = modal_damping(M, K, C)
     assert len(omega) == 6
-    m_red = e.mass[0] * e.mass[1] / (e.mass[0] + e.mass[1])
-    i_red = e.inertia[0] * e.inertia[1] / (e.inertia[0] + e.inertia[1])
-    exact = {"axial": np.sqrt(b.ka[0] / m_red), "twist": np.sqrt(b.kt[0] / i_red)}
+    exact = {"axial": np.sqrt(b.ka[0] / reduced(e.mass[0], e.mass[1])),
+             "twist": np.sqrt(b.kt[0] / reduced(e.inertia[0], e.inertia[1]))}
     for name, w0 in exact.items():
         assert np.min(np.abs(omega / w0 - 1.0)) < 1e-4, name   # 1e-4: finite-difference K
     # every mode, 1e-4: finite-difference K
@@ -158,38 +155,6 @@ def test_modal_damping_ratios_of_an_unequal_pair(r2):
 
 # ----------------------------------------------------------------------------------------------
 # free decay in the time loop
-
-def _log_decrement_ratio(s):
-    """Damping ratio from the mean logarithmic decrement of the maxima of ``s`` (parabolic peaks)."""
-    k = np.nonzero((s[1:-1] > s[:-2]) & (s[1:-1] >= s[2:]))[0] + 1
-    peaks = np.array([s[i] - 0.125 * (s[i + 1] - s[i - 1]) ** 2 / (s[i - 1] - 2 * s[i] + s[i + 1])
-                      for i in k])
-    assert len(peaks) >= 3
-    delta = np.mean(np.log(peaks[:-1] / peaks[1:]))
-    return delta / np.sqrt(4 * np.pi**2 + delta**2)
-
-
-def _free_decay(e, b, omega, zeta, measure, periods=4.5, per_period=400):
-    """``measure(elements)`` at every step of the free pair (plates far away), and dt."""
-    dt = 2 * np.pi / (omega * np.sqrt(1.0 - zeta**2)) / per_period
-    sim = Simulation(Communicator(), e, b, Plates.pair(0, -1.0, 1.0, 0.0, 1.0), dt)
-    out = [measure(e)]
-
-    class Record:
-        every = 1
-
-        def __call__(self, sim):
-            out.append(measure(sim.elements))
-
-    sim.run(int(periods * per_period), operations=[Record()])
-    return np.array(out), dt
-
-
-def _rotation_about(el, k, axis):
-    """Rotation angle of element k about ``axis`` from its initial (identity) orientation."""
-    q = el.q[k]
-    return 2.0 * np.arctan2(q[1:] @ axis, q[0])
-
 
 @pytest.mark.parametrize("mode", ["axial", "twist", "bending", "transverse"])
 def test_free_decay_of_each_mode(mode):
@@ -207,11 +172,11 @@ def test_free_decay_of_each_mode(mode):
         measure = lambda el: el.x[1, 0] - el.x[0, 0] - L0
     elif mode == "twist":
         rotate_element(e, 1, A * X)
-        measure = lambda el: _rotation_about(el, 1, X) - _rotation_about(el, 0, X)
+        measure = lambda el: relative_rotation(el, X)
     elif mode == "bending":
         rotate_element(e, 0, -0.5 * A * Z)
         rotate_element(e, 1, 0.5 * A * Z)
-        measure = lambda el: _rotation_about(el, 1, Z) - _rotation_about(el, 0, Z)
+        measure = lambda el: relative_rotation(el, Z)
     else:
         # chord turned by psi (centres moved across), both ends turned by phi = -beta psi, so that
         # the angular momentum is zero: beta = m* L0^2 / (2 I)
@@ -223,14 +188,14 @@ def test_free_decay_of_each_mode(mode):
         rotate_element(e, 1, -beta * psi * Z)
         measure = lambda el: el.x[1, 1] - el.x[0, 1]
     e.x0[:] = e.x
-    s, dt = _free_decay(e, b, omega, zeta, measure)
+    s, dt = free_oscillation(e, b, omega * np.sqrt(1.0 - zeta**2), measure)
     s = s / np.abs(s[0])
     crossings = np.nonzero(np.sign(s[1:]) != np.sign(s[:-1]))[0]
     half_period = np.mean(np.diff(crossings)) * dt
     # damped half period pi / omega_d; 1 %: crossings resolved to 1/400 of a period, linear interp.
     # not used (0.25 % per crossing), and the finite amplitude 1e-5 is linear to 1e-5
     assert half_period == pytest.approx(np.pi / (omega * np.sqrt(1 - zeta**2)), rel=0.01)
-    measured = _log_decrement_ratio(s)
+    measured = log_decrement_ratio(s)
     # 3 %: Verlet's damping error at 400 steps per period (omega dt = 0.016: relative O(omega dt)
     # on the decrement) and the parabolic peak estimate
     assert measured == pytest.approx(zeta, rel=0.03), (

@@ -9,8 +9,9 @@ and the Love-Weber stress); the solver's answer does not depend on the pinned gr
 regularisation and solves the unregularised system; the affine tensor's invariants equal the sums
 over the contacts, and Walton's closed form equals those sums on an ideal network and bounds them
 on the packing through the force heterogeneity; the entry point gives the same moduli from a
-checkpoint on 1 and 2 ranks; the static moduli equal the dynamic relaxation's under a quasi-static
-strain within the Hertz nonlinearity of the weak contacts.
+checkpoint on 1 and 2 ranks; the isotropic protocol's relaxed moduli (its ramped increments)
+equal the static ones within the Hertz nonlinearity at the strain, the relaxation residual and the
+sliding of the weakest contacts, in 3D and 2D, where one-step increments fall far outside.
 """
 import os
 
@@ -307,78 +308,157 @@ def test_moduli_check_on_a_checkpoint_on_two_ranks(packing, tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------
-# static against dynamic
+# static against dynamic: the protocol's relaxed moduli against the linear response
 
-def ramped_increment(sim, sign, e, tol, steps):
-    """The protocol's increment ``diag(sign) e`` applied quasi-statically: the cell deforms at a
-    constant rate over ``steps`` steps (velocities zeroed first), then relaxes (kinetic and force
-    criteria ``tol``). Returns the secant modulus's stresses and edges."""
-    sim.elements.v[:] = 0.0
-    sim.elements.w[:] = 0.0
-    s0, L0 = sim.global_stress(), sim.cell.length.copy()
-    sim.cell.rate = np.asarray(sign, dtype=float) * e / (steps * sim.dt)
-    sim.run(steps)
-    sim.cell.rate = np.zeros(3)
-    b, ok, _ = iso.relax(sim, tol, 200, 200000)
-    assert ok
-    return s0, b["stress"], L0, sim.cell.length.copy()
+@pytest.fixture(scope="module")
+def prepared_files(packing, tmp_path_factory):
+    """Checkpoints of the prepared packings (restored fresh for every measurement): the 3D
+    fixture's, and a 2D one (100 spheres in the plane z = 0, FIRE, 1 MPa)."""
+    from pardem.engine import granular
+    d = tmp_path_factory.mktemp("prepared")
+    granular.write(packing["case"], str(d / "p3.h5"))
+    deck2 = load_deck(iso.SCHEMA, SMALL, ["sample.n=100", f"preparation.pressures=[{P0}]", "domain.dimension=2",
+                                          'preparation.relaxation="fire"'])
+    case2, info2 = iso.prepare(Communicator(), deck2, P0)
+    assert info2["converged"]
+    granular.write(case2, str(d / "p2.h5"))
+    return {3: (str(d / "p3.h5"), packing["deck"]), 2: (str(d / "p2.h5"), deck2)}
 
 
-def nonlinearity(net, stress, e):
-    """``sum_c (E_c / E) (e s_n,c / delta_c)^2`` of the relaxed bulk and shear responses: the
-    energy-weighted square of each contact's relative overlap change over the increment (Hertz:
-    ``fn / kn = 2 delta / 3``)."""
+def residual_loads(sim):
+    """Unbalanced forces and torques [n, 3] of the owned grains in gid order (one rank), the
+    viscous drag of the step removed (as ``isotropic.balance``); 2D: in-plane components only."""
+    el = sim.elements
+    n = el.n_owned
+    vh = el.v[:n] - 0.5 * sim.dt * el.f[:n] * el.inv_mass[:n, None]
+    wh = el.w[:n] - 0.5 * sim.dt * el.t[:n] * el.inv_inertia[:n, None]
+    order = np.argsort(el.gid[:n])
+    force = (el.f[:n] + sim.viscous_damping * el.mass[:n, None] * vh)[order]
+    torque = (el.t[:n] + sim.viscous_damping * el.inertia[:n, None] * wh)[order]
+    if sim.cell.dimension == 2:
+        force[:, 2] = 0.0
+        torque[:, :2] = 0.0
+    return force, torque
+
+
+def residual_error(sim, loads, eps, fn, e, modulus):
+    """The relaxation's residual error relative to ``e * modulus``: the stress change that removing
+    the unbalanced ``loads`` of the state of ``sim`` would make (``Relaxation.equilibrium_correction``,
+    linear), as the modulus function ``fn`` of the strain mode ``eps`` reads it."""
+    h = moduli_check.gather_network(sim)
+    net = lr.hertz_mindlin_branches(h["n"], h["i"], h["j"], h["d"], h["radius"], h["volume"], E_STAR, G_STAR)
+    ds, _ = lr.Relaxation(net).equilibrium_correction(*loads, h["stress"])
+    return abs(fn(ds, eps)) / (e * abs(modulus))
+
+
+def mode_measures(net, stress, e, modes, friction):
+    """Per strain mode of ``modes`` (``moduli_check.MODES``), from the static relaxed response:
+    ``chi = sum_c (E_c / E) (e s_n,c / delta_c)^2``, the energy-weighted square of each contact's
+    relative overlap change over the increment (Hertz: ``delta = 3 fn / (2 kn)``), and ``S`` the
+    share of the mode's energy ``eps : C : eps V`` held by the tangential springs of the contacts
+    whose linear tangential force ``kt |w| e`` exceeds the Coulomb cap ``friction * fn``."""
     rel = lr.Relaxation(net)
-    delta = 1.5 * rel.sub.fn / rel.sub.kn
-    out = []
-    for eps in (lr.BULK, lr.SHEAR):
+    sub = rel.sub
+    delta = 1.5 * sub.fn / sub.kn
+    out = {}
+    for name, eps, _ in modes:
         r = rel.response(eps, stress)
-        s_n, w, _, _ = lr.contact_measures(rel.sub, eps, r["u"], r["theta"])
-        E = rel.sub.kn * s_n**2 + rel.sub.kt * np.einsum("ij,ij->i", w, w)
-        out.append(float(np.sum(E * (e * s_n / delta) ** 2) / np.sum(E)))
+        s_n, w, _, _ = lr.contact_measures(sub, eps, r["u"], r["theta"])
+        w2 = np.einsum("ij,ij->i", w, w)
+        E = sub.kn * s_n**2 + sub.kt * w2
+        chi = float(np.sum(E * (e * s_n / delta) ** 2) / np.sum(E))
+        slide = sub.kt * np.sqrt(w2) * e > friction * sub.fn
+        energy = abs(float(np.einsum("ab,ab->", eps, r["relaxed"]))) * sub.volume
+        out[name] = {"chi": chi, "S": float(np.sum(sub.kt[slide] * w2[slide]) / energy)}
     return out
 
 
-def test_static_moduli_equal_the_quasistatic_dynamic_ones(packing):
-    """The protocol's bulk then shear increment (strain e = 0.01 <delta / d>), applied quasi-
-    statically (cell rate over 4000 steps, then relaxation to a force residual of 1e-6 and kinetic
-    1e-13) with no-slip contacts (friction 1e3: the linear response assumes no sliding), against
-    ``linear_response.protocol_moduli`` (the secant to second order: trapezoid of the tangents).
-
-    Tolerance, relative: 3 x (chi + c). chi = sum_c (E_c / E) (e s_n / delta)^2 (about 3e-4): the
-    two secants agree to first order in each contact's overlap change, and differ beyond it (the
-    incremental Mindlin spring follows the loading path, the trapezoid does not) by terms of order
-    (e s_n / delta)^2, weighted by the contact's share of the energy; c = the relaxation's residual
-    error, the stress change that removing the unbalanced loads of the end state would make
-    (``Relaxation.equilibrium_correction``, linear), over e times the modulus. Factor 3: O(1)
-    coefficients. Measured: chi 2.9e-4 (K), 3.1e-4 (mu), c 7e-7, 4e-6; K 1.8e-5, mu 4.8e-4.
-
-    Applied in ONE step instead (the protocol's ``isotropic.increment``) the relaxed moduli come out
-    low in proportion to the strain (mu: 3.9 % at e, 1.0 % at e / 4, 0.27 % at e / 16; K: 6e-4 at
-    e): the ringing after the jump unloads every contact repeatedly and the Mindlin unloading
-    rescale shrinks the tangential forces each time -- so the quasi-static path is the one compared.
-    """
-    sim, deck, e = packing["sim"], packing["deck"], packing["strain"]
+def measure(path, deck, dim, friction, ramp):
+    """The protocol's moduli (``isotropic.moduli``, the deck's tolerances and strain rule) of the
+    packing of checkpoint ``path`` with ``friction`` and ``ramp`` steps per increment, the static
+    ones of the same state (``moduli_check.static_moduli``, as the sweep computes them), the
+    residual errors of every relaxed state and the mode measures."""
+    from pardem.engine import granular
+    case = granular.restore(Communicator(), path)
+    sim = case.sim
+    sim.compute_forces()
+    sim.viscous_damping = deck["preparation"]["damping"]
+    sim.elements.v[:] = 0.0
+    sim.elements.w[:] = 0.0
+    d = dict(deck, material=dict(deck["material"], friction=friction), moduli=dict(deck["moduli"], ramp_steps=ramp))
+    e = 0.01 * iso.network(sim)["mean_overlap_ratio"]
+    static = moduli_check.compact(moduli_check.static_moduli(sim, d["material"], e))
     g = moduli_check.gather_network(sim)
-    static = lr.protocol_moduli(g["n"], g["i"], g["j"], g["d"], g["radius"], g["volume"], g["stress"],
-                                E_STAR, G_STAR, e)
-    chi = nonlinearity(packing["net"], g["stress"], e)
-    mat = dict(deck["material"], friction=1e3)
-    iso.measuring_contacts(sim, mat)
-    tol = dict(deck["equilibrium"], force_tolerance=1e-6, kinetic_tolerance=1e-13)
-    for k, (name, sign, fn, lfn) in enumerate((("K", iso.ISOTROPIC, iso.bulk_modulus, lr.bulk_from),
-                                               ("mu", iso.SHEAR, iso.shear_modulus, lr.shear_from))):
-        s0, s1, L0, L1 = ramped_increment(sim, sign, e, tol, 4000)
-        dynamic = fn(s0, s1, L0, L1)
-        h = moduli_check.gather_network(sim)
-        el = sim.elements
-        n = el.n_owned
-        vh = el.v[:n] - 0.5 * sim.dt * el.f[:n] * el.inv_mass[:n, None]
-        wh = el.w[:n] - 0.5 * sim.dt * el.t[:n] * el.inv_inertia[:n, None]
-        order = np.argsort(el.gid[:n])
-        force = (el.f[:n] + sim.viscous_damping * el.mass[:n, None] * vh)[order]
-        torque = (el.t[:n] + sim.viscous_damping * el.inertia[:n, None] * wh)[order]
-        end = lr.hertz_mindlin_branches(h["n"], h["i"], h["j"], h["d"], h["radius"], h["volume"], E_STAR, G_STAR)
-        ds, _ = lr.Relaxation(end).equilibrium_correction(force, torque, h["stress"])
-        c = abs(lfn(ds, np.diag(sign))) / (e * abs(dynamic))
-        assert static[f"{name}_relaxed"] == pytest.approx(dynamic, rel=3.0 * (chi[k] + c)), (name, chi[k], c)
+    net = lr.hertz_mindlin_branches(g["n"], g["i"], g["j"], g["d"], g["radius"], g["volume"], E_STAR, G_STAR)
+    modes = moduli_check.MODES[dim]
+    # the prepared state's own residual error (the K increment starts from it)
+    c_start = residual_error(sim, residual_loads(sim), modes[0][1], modes[0][2], e, static["K_static"])
+    measures = mode_measures(net, g["stress"], e, modes, friction)
+    # at every equilibrium check of a relaxation, its residual error; the last is the end state's
+    c_end = {}
+    run = iso.SweepRun()
+    mode = {name: (eps, fn) for name, eps, fn in modes}
+
+    def on_check(sim_, b):
+        name = run.state["stage"]
+        eps, fn = mode[name]
+        c_end[name] = residual_error(sim_, residual_loads(sim_), eps, fn, e, static[f"{name}_static"])
+    run.on_check = on_check
+    mod = iso.moduli(sim, d, e, run=run)
+    return {"static": static, "moduli": mod, "compare": moduli_check.compare(static, mod), "c_end": c_end,
+            "measures": measures, "strain": e, "c_start": c_start}
+
+
+@pytest.mark.parametrize("dim, friction", [(3, 0.3), (3, 1e3), (2, 0.3)])
+def test_relaxed_moduli_equal_the_static_ones(prepared_files, dim, friction):
+    """The protocol's relaxed K and mu (``isotropic.moduli``: each increment ramped over
+    ``moduli.ramp_steps`` steps, relaxed to the deck's criteria) against the static secants of
+    the same packing (``moduli_check.static_moduli``, the summary's ``moduli.static``), in 3D
+    with the deck's friction 0.3 and without sliding (friction 1e3), and in 2D.
+
+    Relative window, from the physics of the two measurements:
+
+    * nonlinearity, ``3 chi``: the static secant is the trapezoid of the tangents at both ends of
+      the increment, exact to first order in each contact's overlap change x = e s_n / delta
+      (for Hertz k ~ delta^(1/2) the mean of k over the increment is 1 + x/4 - x^2/24, the
+      trapezoid 1 + x/4 - x^2/16; the incremental Mindlin spring and the non-affine path add
+      terms of the same order), so the two differ by O(x^2) weighted by the contacts' share of the
+      energy: chi = <x^2>_E (3e-4 here; e * dlnK/de itself, x/4 ~ 4e-3, cancels); factor 3 for
+      the O(1) coefficients;
+    * relaxation, ``3 (c_start + c_end)``: the dynamic stresses are measured at a force residual of
+      ``equilibrium.force_tolerance`` (1e-4), the static ones at exact equilibrium; c is the stress
+      change that removing the measured unbalanced loads would make (linear solve), over e times
+      the modulus, at the start and at the end of the increment;
+    * sliding, ``S`` (lower side only): the static response assumes no sliding; a contact that
+      slides loses at most its whole tangential spring, which lowers the relaxed modulus by at most
+      the share of the mode's energy held by that spring (the relaxed state minimises the energy:
+      removing springs cannot lower it by more than their energy in the old minimiser); S sums it
+      over the contacts whose linear tangential force at strain e exceeds the Coulomb cap.
+
+    The affine K of the first ramp step equals the static tangent at zero strain to
+    ``sqrt(chi) / ramp``: its strain is e / ramp, and the secant over a step differs from the tangent
+    by x / 4 per contact, whose energy-weighted mean is at most sqrt(chi) / 4 (Cauchy-Schwarz).
+    Measured (3D, 0.3): K 2.2e-5, mu -2.5e-3 (S = 3.3e-3: one contact in 630 slides); (3D, 1e3): K
+    2.2e-5, mu -3.8e-4; 2D: K -4e-5, mu -2.0e-3. In ONE step (``ramp_steps = 1``) mu comes out
+    3.7 % low at friction 1e3, far outside the window: checked too.
+    """
+    path, deck = prepared_files[dim]
+    ramp = deck["moduli"]["ramp_steps"]
+    assert ramp == iso.DEFAULT_RAMP_STEPS
+    m = measure(path, deck, dim, friction, ramp)
+    c_start, cmp = m["c_start"], m["compare"]
+    for name in ("K", "mu"):
+        chi, S = m["measures"][name]["chi"], m["measures"][name]["S"]
+        # the mu increment starts where the K increment's relaxation ended
+        c = (c_start if name == "K" else m["c_end"]["K"]) + m["c_end"][name]
+        tol = 3.0 * (chi + c)
+        diff = cmp[f"{name}_difference"]
+        assert -tol - S <= diff <= tol, (name, diff, chi, c, S)
+        if friction > 1.0:
+            assert S == 0.0
+    assert abs(cmp["K_affine_difference"]) < np.sqrt(m["measures"]["K"]["chi"]) / ramp, cmp
+    assert m["moduli"]["K_relax_converged"] and m["moduli"]["mu_relax_converged"]
+    if friction > 1.0:
+        one = measure(path, deck, dim, friction, 1)
+        chi = m["measures"]["mu"]["chi"]
+        assert one["compare"]["mu_difference"] < -10.0 * 3.0 * (chi + m["c_end"]["mu"]), one["compare"]

@@ -5,9 +5,7 @@ line naming the silent rank.
 """
 import pathlib
 import re
-import signal
 import subprocess
-import sys
 import time
 
 from tests.test_signals import Job, rank_pids, survivors
@@ -35,18 +33,25 @@ def watchdog_lines(job):
     return [ln for ln in job.stderr.splitlines() if ln.startswith("pardem: error: watchdog:")]
 
 
-def test_a_stopped_rank_is_named_and_the_job_ends():
-    job = Job([LOOP, str(TIMEOUT), "600"])
+def stop_rank_1(args, ready, limit):
+    """Start the loop with ``args``, wait for its ``ready`` line, SIGSTOP rank 1 and wait for the
+    job to end (``limit`` + LATE + 30 s at most). Returns (job, exit code, seconds from the stop to
+    the end, {rank: pid}); the job is killed whatever happens."""
+    job = Job([LOOP, *args])
     try:
-        job.wait_for("running", timeout=120)
+        job.wait_for(ready, timeout=120)
         ranks = rank_pids_printed(job)
         assert sorted(ranks) == [0, 1] and sorted(ranks.values()) == sorted(rank_pids(job.p.pid))
         t0 = time.monotonic()
         subprocess.run(["kill", "-STOP", str(ranks[1])], check=True)
-        code = job.finish(timeout=TIMEOUT + LATE + 30)
-        elapsed = time.monotonic() - t0
+        code = job.finish(timeout=limit + LATE + 30)
+        return job, code, time.monotonic() - t0, ranks
     finally:
         job.kill()
+
+
+def test_a_stopped_rank_is_named_and_the_job_ends():
+    job, code, elapsed, ranks = stop_rank_1([str(TIMEOUT), "600"], "running", TIMEOUT)
     assert code == 1, job.stderr
     assert TIMEOUT <= elapsed < TIMEOUT + LATE, elapsed
     (line,) = watchdog_lines(job)
@@ -58,16 +63,8 @@ def test_a_rank_stopped_before_the_first_step_is_named_and_the_job_ends():
     """Rank 1 is stopped while it builds its case (no time step yet) and rank 0 waits for it: the
     job ends after the start-up limit (``STARTUP_SECONDS``, set to 6 s here) naming rank 1."""
     startup = 6.0
-    job = Job([LOOP, str(TIMEOUT), "600", "build=600", f"startup={startup}"])
-    try:
-        job.wait_for("building", timeout=120)
-        ranks = rank_pids_printed(job)
-        t0 = time.monotonic()
-        subprocess.run(["kill", "-STOP", str(ranks[1])], check=True)
-        code = job.finish(timeout=startup + LATE + 30)
-        elapsed = time.monotonic() - t0
-    finally:
-        job.kill()
+    job, code, elapsed, ranks = stop_rank_1([str(TIMEOUT), "600", "build=600", f"startup={startup}"], "building",
+                                            startup)
     assert code == 1, job.stderr
     assert startup <= elapsed < startup + LATE, elapsed
     (line,) = watchdog_lines(job)

@@ -39,7 +39,6 @@ Exit codes: 0 done (failed measurements are flagged in the output, not errors), 
 (all ranks stop), 2 bad input (one line naming the option or deck field and the allowed values).
 """
 import contextlib
-import json
 import os
 import sys
 import time
@@ -49,8 +48,8 @@ import numpy as np
 
 import pardem
 from pardem.protocols import anisotropy_study as study
-from pardem.drivers.cli import (EXIT_OK, driver_parser, fail_usage, option_number, option_numbers, output_dir,
-                                run_driver, study_restart)
+from pardem.drivers.cli import (EXIT_OK, add_study_options, driver_parser, fail_usage, option_names,
+                                option_number, option_numbers, output_dir, plain_json, run_driver, study_restart)
 from pardem.protocols.compression import build_case
 from pardem.config import DeckError, load_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
@@ -84,30 +83,18 @@ def parser(comm=None):
     p.add_argument("--steps", metavar="N",
                    help="run each case for at most N steps (smoke tests: a case too short to measure is "
                         "flagged, not reported; default: the case's loading from --transits)")
-    p.add_argument("--quick", action="store_true",
-                   help="a small study for tests: boxes of 18 radii, ratios 1,5, 2 realisations, xi step 45")
-    p.add_argument("--no-plot", action="store_true", dest="no_plot", help="do not write anisotropy.png")
-    p.add_argument("--restart", metavar="DIR",
-                   help="continue the study whose output is DIR (killed or stopped): the cases recorded in "
-                        "DIR/records are not run again; the same deck and options are required; the results "
-                        "go to a new folder (--out, default DIR-restart-<time>) that holds every record")
-    return p
-
-
-def _names(name, text, allowed):
-    out = []
-    for word in text.split(","):
-        match = [a for a in allowed if a.lower() == word.strip().lower()]
-        if not match:
-            raise DeckError(f"{name} {text}: expected a comma-separated list of {', '.join(allowed)}")
-        out.append(match[0])
-    return tuple(dict.fromkeys(out))
+    return add_study_options(
+        p, quick_help="a small study for tests: boxes of 18 radii, ratios 1,5, 2 realisations, xi step 45",
+        plot_help="do not write anisotropy.png",
+        restart_help="continue the study whose output is DIR (killed or stopped): the cases recorded in "
+                     "DIR/records are not run again; the same deck and options are required; the results go "
+                     "to a new folder (--out, default DIR-restart-<time>) that holds every record")
 
 
 def make_plan(args, deck):
     """The study plan from the options and the checked deck; DeckError on a bad option."""
-    kinds = study.KINDS if args.kinds is None else _names("--kinds", args.kinds, study.KINDS)
-    laws = study.LAWS if args.laws is None else _names("--laws", args.laws, study.ALL_LAWS)
+    kinds = study.KINDS if args.kinds is None else option_names("--kinds", args.kinds, study.KINDS)
+    laws = study.LAWS if args.laws is None else option_names("--laws", args.laws, study.ALL_LAWS)
     quick = study.QUICK_PLAN if args.quick else {}
     if args.ratios is not None:
         ratios = option_numbers("--ratios", args.ratios, 1e-3, 1e4)
@@ -171,7 +158,7 @@ def run(comm, args):
         problem = comm.bcast(problem, root=root)
         if problem:
             fail_usage(comm, problem)
-    header = _plain_json({"deck": deck, "plan": asdict(plan)})
+    header = plain_json({"deck": deck, "plan": asdict(plan)})
     finished = {}
     if args.restart:
         finished = {study.case_id(r): r for r in study_restart(comm, args.restart, header, "an anisotropy study")}
@@ -258,11 +245,6 @@ def _case_outputs(out, case_comm, vtk_every):
                 if vtk_every else []
             yield [csv.append, h5.append], ops
     return outputs
-
-
-def _plain_json(obj):
-    """``obj`` as JSON gives it back (tuples as lists, NaN kept), for comparing with a stored header."""
-    return json.loads(json.dumps(obj, sort_keys=True))
 
 
 def _progress(t0):

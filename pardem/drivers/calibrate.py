@@ -65,14 +65,13 @@ import time
 import pardem
 from pardem.protocols import calibration as calib
 from pardem.drivers.cli import (EXIT_NOT_MEASURED, EXIT_OK, EXIT_UNSTABLE, driver_parser, fail_usage, output_dir,
-                                run_driver)
+                                plain_json, run_driver, study_restart)
 from pardem.protocols.compression import SeriesSampler, build_case, measure, with_plate_speed
 from pardem.protocols import shear as shear_protocol
 from pardem.config import DeckError, check_deck, load_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.io.paraview import ParaViewWriter
-from pardem.io.records import (RecordLog, header_difference, read_records, read_study_header,
-                               start_study_folder)
+from pardem.io.records import RecordLog, read_study_header, start_study_folder
 from pardem.io.series import SeriesCSV, dict_row
 from pardem.io.series_h5 import SeriesH5
 from pardem.io.summary import write_json
@@ -372,26 +371,6 @@ def format_table(report):
     return "\n".join(lines)
 
 
-def _finished_runs(comm, directory, header):
-    """Records of the runs done in ``directory`` by name; exits 2 unless it is a calibration of the same
-    deck and options."""
-    old = read_study_header(directory) if comm.is_root else None
-    old = comm.bcast(old)
-    if old is None or old.get("driver") != "calibrate":
-        fail_usage(comm, f"--restart {directory}: no calibration there (no study.json of the calibrate driver)")
-    diff = header_difference(old, header, ("deck", "options"))
-    if diff:
-        part, first, was, now = diff
-        fail_usage(comm, f"--restart {directory}: the calibration there has another {part} ({first}: "
-                         f"{was!r} there, {now!r} now): repeat its deck and options to continue it")
-    recs = comm.bcast(read_records(directory) if comm.is_root else None)
-    return {r["name"]: r for r in recs if "name" in r}
-
-
-def _plain_json(obj):
-    return json.loads(json.dumps(obj, sort_keys=True))
-
-
 def run(comm, args):
     t_start = time.perf_counter()
     base = None
@@ -421,9 +400,12 @@ def run(comm, args):
             verification_raw(raw, deck, args.quick)     # refuse a domain too small before writing
     except DeckError as err:
         fail_usage(comm, str(err))
-    header = _plain_json({"driver": "calibrate", "deck": deck,
-                          "options": {"verify": args.verify, "quick": args.quick, "steps": args.steps}})
-    finished = _finished_runs(comm, args.restart, header) if args.restart else {}
+    header = plain_json({"driver": "calibrate", "deck": deck,
+                         "options": {"verify": args.verify, "quick": args.quick, "steps": args.steps}})
+    finished = {}
+    if args.restart:      # the runs done there, by name
+        finished = {r["name"]: r for r in study_restart(comm, args.restart, header, "a calibration",
+                                                        parts=("deck", "options"), driver="calibrate") if "name" in r}
     # checked, created and locked; a folder holding results is refused (unless --overwrite), and a
     # restart writes into a new folder (default DIR-restart-<time>) that gets every record
     out = output_dir(comm, args, "calibrate")
@@ -452,15 +434,9 @@ def run(comm, args):
     comm.barrier()
     if args.verify:
         log = RecordLog(out, 0) if comm.is_root else None
-        try:
+        with _measurement_failures(comm, "verification domain", "a verification run"):
             report["verification"] = verify(comm, raw, deck, targets, cal, args.quick, say, out, finished,
                                             log.append if log else None, args.steps)
-        except (DeckError, DecompositionError) as err:
-            fail_usage(comm, f"verification domain: {err}")
-        except InstabilityError as err:
-            if comm.is_root:
-                sys.stderr.write(f"pardem: error: a verification run became unstable {err}\n")
-            raise SystemExit(EXIT_UNSTABLE)
     report["wall_seconds"] = time.perf_counter() - t_start
     code = EXIT_OK
     if comm.is_root:
@@ -490,6 +466,20 @@ def run(comm, args):
     return comm.bcast(code)
 
 
+@contextlib.contextmanager
+def _measurement_failures(comm, context, run_name):
+    """Around the measurement runs (collective): a domain they cannot build ends with one line
+    ``<context>: <reason>`` and exit 2, an unstable run with one line naming ``run_name`` and exit 3."""
+    try:
+        yield
+    except (DeckError, DecompositionError) as err:
+        fail_usage(comm, f"{context}: {err}")
+    except InstabilityError as err:
+        if comm.is_root:
+            sys.stderr.write(f"pardem: error: {run_name} became unstable {err}\n")
+        raise SystemExit(EXIT_UNSTABLE)
+
+
 HISTORY_NAME = "calibration_history.json"
 HISTORY_PLOT = "calibration_history.png"
 
@@ -515,14 +505,8 @@ def run_compact(comm, args, deck, t_start):
         history.append(entry)
         if comm.is_root:
             write_json(hist_path, {"targets": dict(zip(plan.targets, plan.values)), "history": history})
-    try:
+    with _measurement_failures(comm, "compact calibration", "a calibration run"):
         result = cc.calibrate_compact(comm, deck, say, on_iteration)
-    except (DeckError, DecompositionError) as err:
-        fail_usage(comm, f"compact calibration: {err}")
-    except InstabilityError as err:
-        if comm.is_root:
-            sys.stderr.write(f"pardem: error: a calibration run became unstable {err}\n")
-        raise SystemExit(EXIT_UNSTABLE)
     b = result["bonds"]
     raw = cc.compress_raw(deck, b["young"], b["radius_ratio"])
     report = {"pardem_version": pardem.__version__, "driver": "calibrate", "n_ranks": comm.size,

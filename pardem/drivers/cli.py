@@ -19,12 +19,13 @@ SIGKILL after ``KillWait`` (30 s by default), and ``#SBATCH --signal=TERM@300`` 
 import argparse
 import datetime
 import errno
+import json
 import os
 import signal
 import sys
 import time
 
-from pardem.config import DeckError, describe, load_deck
+from pardem.config import DeckError, choice, describe, load_deck
 from pardem.engine import stop
 from pardem.engine.errors import InstabilityError, Interrupted, OutputError
 from pardem.io import run_folder
@@ -289,22 +290,53 @@ def option_number(name, text, lo, hi, integer=False):
 
 def option_numbers(name, text, lo, hi):
     """Distinct numbers of a comma-separated option, each in [lo, hi], in the order given."""
+    return _option_list(name, text, lambda t: option_number(name, t, lo, hi), f"numbers in [{lo:g}, {hi:g}]")
+
+
+def option_names(name, text, allowed):
+    """Distinct names of a comma-separated option, each one of ``allowed`` in any case (returned as
+    ``allowed`` spells it), in the order given."""
+    one = choice(*allowed)
+    return _option_list(name, text, lambda t: one(name, t.strip()), ", ".join(allowed))
+
+
+def _option_list(name, text, one, expected):
+    """``one(item)`` of every item of a comma-separated option, repeats dropped; a DeckError of any
+    item becomes one naming the whole option and ``expected``."""
     try:
-        return tuple(dict.fromkeys(option_number(name, t, lo, hi) for t in text.split(",")))
+        return tuple(dict.fromkeys(one(t) for t in text.split(",")))
     except DeckError:
-        raise DeckError(f"{name} {text}: expected a comma-separated list of numbers in [{lo:g}, {hi:g}]") from None
+        raise DeckError(f"{name} {text}: expected a comma-separated list of {expected}") from None
 
 
-def study_restart(comm, directory, header, what):
-    """The records of an earlier run of the same study (a task farm) in ``directory`` (every rank
-    reads them); exits 2 with one line if ``directory`` holds no study of ``what`` (e.g. "a mixture
-    study") or its deck and plan differ from ``header``'s."""
-    old = read_study_header(directory)
-    if old is None:
-        fail_usage(comm, f"--restart {directory}: no study.json there: not the output of {what}")
-    diff = header_difference(old, header, ("plan", "deck"))
+def add_study_options(p, quick_help, plot_help, restart_help):
+    """The options of a study driver (cases spread over the ranks by ``pardem.parallel.task_farm``):
+    ``--quick`` (a small study), ``--no-plot`` (``args.no_plot``) and ``--restart DIR`` (continue the
+    study whose output is DIR, ``study_restart``), each with the driver's help text."""
+    p.add_argument("--quick", action="store_true", help=quick_help)
+    p.add_argument("--no-plot", action="store_true", dest="no_plot", help=plot_help)
+    p.add_argument("--restart", metavar="DIR", help=restart_help)
+    return p
+
+
+def plain_json(obj):
+    """``obj`` as JSON gives it back (tuples as lists, keys sorted, NaN kept): a study header as
+    ``study_restart`` compares it with the stored one."""
+    return json.loads(json.dumps(obj, sort_keys=True))
+
+
+def study_restart(comm, directory, header, what, parts=("plan", "deck"), driver=None):
+    """The records of an earlier run of the same study (a task farm) in ``directory`` (read by rank
+    0, every rank gets them); exits 2 with one line if ``directory`` holds no study of ``what`` (e.g.
+    "a mixture study"; with ``driver``, none whose header names that driver) or its ``parts`` of the
+    header (e.g. deck and plan) differ from ``header``'s."""
+    old = comm.bcast(read_study_header(directory) if comm.is_root else None)
+    if old is None or (driver is not None and old.get("driver") != driver):
+        of = f" of the {driver} driver" if driver is not None else ""
+        fail_usage(comm, f"--restart {directory}: no study.json{of} there: not the output of {what}")
+    diff = header_difference(old, header, parts)
     if diff:
         part, first, was, now = diff
         fail_usage(comm, f"--restart {directory}: the study there has another {part} ({first}: "
                          f"{was!r} there, {now!r} now): repeat its options and deck to continue it")
-    return read_records(directory)
+    return comm.bcast(read_records(directory) if comm.is_root else None)

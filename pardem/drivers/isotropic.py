@@ -4,30 +4,36 @@
         [--pressures 1e5,1e6,...] [--out DIR] [--steps N] [--restart CHECKPOINT.h5] [--quiet]
     mpiexec -n 2 python -m pardem.drivers.isotropic --config drivers/isotropic_glass.toml
 
-A gas of spheres in a periodic cell is compressed by a pressure servo, the kinetic energy removed
-by FIRE (adaptive step) or global viscous damping, to static equilibrium at each p0 (ascending, the
+A gas of spheres in a periodic cell is compressed by a pressure servo, the kinetic energy removed by
+FIRE (adaptive step) or global viscous damping, to static equilibrium at each p0 (ascending, the
 same packing continued), measured (p, Z, Z without rattlers, solid fraction, normal force
-distribution), then, with friction restored, probed
-by small affine strain increments (isotropic and volume-preserving shear) for the bulk and shear
-moduli, affine (no relaxation) and relaxed. The protocol and the equilibrium criteria are those of
-``pardem.protocols.isotropic``. Default deck: ``drivers/isotropic_glass.toml`` values (10,000 glass spheres).
+distribution), then, with friction restored, probed by small affine strain increments (isotropic and
+volume-preserving shear) for the bulk and shear moduli, affine (the first step of each increment's
+ramp, no relaxation) and relaxed; beside them the static moduli of the contact network's linear
+response (``moduli.static``). The protocol and the equilibrium criteria are those of
+``pardem.protocols.isotropic``. Default deck: ``drivers/isotropic_glass.toml`` values (10,000 glass
+spheres).
 ``[domain] dimension = 2`` runs the same protocol in the 2D mode (``pardem.engine.plane``: sphere
 centres in the plane z = 0, stresses per unit area over the mean diameter, solid fraction as disk
 area over cell area).
 
 Writes ``DIR/isotropic.json`` (the summary): ``rows`` (one per pressure: ``p0, p, Z, Z_no_rattlers,
-solid_fraction, K_affine, K_relaxed, mu_affine, mu_relaxed``, SI units; a modulus is null when not
-measured), ``details`` (per pressure: convergence, steps, criteria values, rattlers, the force
-distribution ``f_n / <f_n>`` histogram, moduli strain and relaxations), ``criteria``, ``deck``,
-``n_ranks``, ``steps``, ``finished``, ``restarted_from``, ``checkpoints``, ``wall_seconds``;
-``DIR/isotropic.csv`` and ``DIR/isotropic.h5`` (the series, one row per equilibrium check:
+solid_fraction, K_affine, K_relaxed, mu_affine, mu_relaxed, K_static, mu_static``, SI units; a
+modulus is null when not measured), ``details`` (per pressure: convergence, steps, criteria values,
+rattlers, the force distribution ``f_n / <f_n>`` histogram, ``static`` (the linear response of the
+prepared packing: ``pardem.protocols.moduli_check.compact``), ``moduli`` (strain, ramp steps,
+relaxations, and ``moduli.static``: K_static, mu_static beside K_relaxed, mu_relaxed and their
+relative differences ``K_difference = K_relaxed / K_static - 1``, ``mu_difference``, likewise for
+the affine moduli)), ``criteria``, ``deck``, ``n_ranks``, ``steps``, ``finished``,
+``restarted_from``, ``checkpoints``, ``wall_seconds``; ``DIR/isotropic.csv`` and
+``DIR/isotropic.h5`` (the series, one row per equilibrium check:
 ``pardem.protocols.isotropic.SERIES_COLUMNS``, units in the HDF5 file); ``DIR/isotropic.png``
 (pressure / p0 and solid fraction against step) and ``DIR/force_distribution.png`` when matplotlib
 is available; checkpoints in ``DIR/checkpoints`` (``[checkpoint]``), ParaView snapshots in
 ``DIR/paraview`` (``output.vtk_every``). ``--restart DIR/checkpoints/checkpoint-<step>.h5``
-continues a run from its checkpoint (bit for bit on the same number of ranks); ``--steps N``
-stops it at the first equilibrium check at or after step N (steps of all pressures and stages,
-counted from the run's start), leaving a checkpoint to continue from.
+continues a run from its checkpoint (bit for bit on the same number of ranks); ``--steps N`` stops
+it at the first equilibrium check at or after step N (steps of all pressures and stages, counted
+from the run's start), leaving a checkpoint to continue from.
 
 Exit codes: 0 done (a pressure that did not reach equilibrium within ``preparation.max_steps`` is
 flagged ``converged: false`` in ``details`` and warned about), 1 unexpected error (all ranks stop),
@@ -132,7 +138,8 @@ class Isotropic(GranularDriver):
         return {"rows": st["rows"], "details": st["details"], "criteria": iso.criteria_text(deck),
                 "dt": float(run.case.constants["dt"]),
                 "units": {"p0": "Pa", "p": "Pa", "K_affine": "Pa", "K_relaxed": "Pa",
-                          "mu_affine": "Pa", "mu_relaxed": "Pa", "Z": "1", "solid_fraction": "1"},
+                          "mu_affine": "Pa", "mu_relaxed": "Pa", "K_static": "Pa", "mu_static": "Pa", "Z": "1",
+                          "solid_fraction": "1"},
                 "n_elements": deck["sample"]["n"], "series": ["isotropic.csv", "isotropic.h5"],
                 "dimension": iso.dimension(deck), "stress_convention": iso.stress_convention(run.case.sim)}
 
@@ -157,10 +164,11 @@ class Isotropic(GranularDriver):
 
 
 def format_table(rows):
-    head = ("p0 [Pa]", "p [Pa]", "Z", "Z_nr", "phi", "K_aff [Pa]", "K_rel [Pa]", "mu_aff [Pa]", "mu_rel [Pa]")
+    head = ("p0 [Pa]", "p [Pa]", "Z", "Z_nr", "phi", "K_aff [Pa]", "K_rel [Pa]", "mu_aff [Pa]", "mu_rel [Pa]",
+            "K_stat [Pa]", "mu_stat [Pa]")
     lines = ["  ".join(f"{h:>11s}" for h in head)]
     for r in rows:
-        vals = [r[k] for k in iso.ROW_KEYS]
+        vals = [r.get(k) for k in iso.ROW_KEYS]
         lines.append("  ".join("       null" if v is None else f"{v:11.5g}" for v in vals))
     return "\n".join(lines)
 

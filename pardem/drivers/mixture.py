@@ -25,15 +25,14 @@ ratios 1 and 1.4, c = 0.5, 2 realisations) about a minute.
 Exit codes: 0 done (cases whose preparation did not converge are flagged and left out of the
 means), 1 unexpected error (all ranks stop), 2 bad input (one line naming the option or deck field).
 """
-import json
 import os
 import sys
 import time
 
 import pardem
 from pardem.config import DeckError, check_deck, load_deck
-from pardem.drivers.cli import (EXIT_OK, agree, driver_parser, option_number, option_numbers, output_dir,
-                                run_driver, study_restart)
+from pardem.drivers.cli import (EXIT_OK, add_study_options, agree, driver_parser, option_number,
+                                option_numbers, output_dir, plain_json, run_driver, study_restart)
 from pardem.io.records import RecordLog, start_study_folder
 from pardem.io.summary import write_json
 from pardem.parallel import task_farm
@@ -65,14 +64,12 @@ def parser(comm=None):
     p.add_argument("--pressure", metavar="PA", help="the pressure p0 [Pa], in [1, 1e9] (default 1e5)")
     p.add_argument("--mean-radius", metavar="M", dest="mean_radius",
                    help="number-mean radius of the grains [m], in [1e-9, 1] (default 1e-4)")
-    p.add_argument("--quick", action="store_true", help="a small study for tests: 100 grains, ratios 1,1.4, "
-                                                        "c = 0.5, 2 realisations")
-    p.add_argument("--no-plot", action="store_true", dest="no_plot", help="do not draw the figures")
-    p.add_argument("--restart", metavar="DIR",
-                   help="continue the study whose output is DIR: the cases recorded in DIR/records are not "
-                        "run again; the same deck and options are required; the results go to a new folder "
-                        "(--out, default DIR-restart-<time>)")
-    return p
+    return add_study_options(
+        p, quick_help="a small study for tests: 100 grains, ratios 1,1.4, c = 0.5, 2 realisations",
+        plot_help="do not draw the figures",
+        restart_help="continue the study whose output is DIR: the cases recorded in DIR/records are not run "
+                     "again; the same deck and options are required; the results go to a new folder (--out, "
+                     "default DIR-restart-<time>)")
 
 
 def make_plan(args, deck):
@@ -90,10 +87,6 @@ def make_plan(args, deck):
                       n=int(deck["sample"]["n"]), dimension=iso.dimension(deck), seed=int(deck["sample"]["seed"]))
 
 
-def _plain_json(obj):
-    return json.loads(json.dumps(obj, sort_keys=True))
-
-
 def run(comm, args):
     t_start = time.perf_counter()
     problem = None
@@ -107,7 +100,7 @@ def run(comm, args):
     except DeckError as err:
         problem = str(err)
     agree(comm, problem)
-    header = _plain_json({"deck": deck, "plan": plan.__dict__})
+    header = plain_json({"deck": deck, "plan": plan.__dict__})
     finished = ({r["id"]: r for r in study_restart(comm, args.restart, header, "a mixture study") if "id" in r}
                 if args.restart else {})
     plot = not args.no_plot and _have_matplotlib(comm)

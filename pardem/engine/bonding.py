@@ -1,4 +1,5 @@
-"""Creating beam bonds between element pairs: geometry, anisotropic properties, damping.
+"""Creating beam bonds between element pairs: geometry, anisotropic properties, damping (the time
+constants of the modes and the rotation damping matrix, ``pardem.physics.beam.rotation_damping_table``).
 
 The bond's modulus and radius follow the anisotropy law of ``BeamMaterial`` in the LRT ``frame``
 (docs/physics.md sections 2 and 3). Reference vectors are stored in each end's body frame at creation.
@@ -8,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pardem.physics import anisotropy
+from pardem.physics.beam import rotation_damping_table
 from pardem.engine.state import Bonds
 
 
@@ -97,14 +99,18 @@ def make_bonds(elements, pairs, material, frame, gids=None):
     e.refresh_rotations()
     to_body = lambda rows, vec: np.einsum("kji,kj->ki", e.rot[rows], vec)
     nb = len(i)
+    bi, bj = i.astype(np.int32), j.astype(np.int32)
+    # the damping of the two end rotations, constant per bond: once here, not every step
+    rot_damping = rotation_damping_table(bi, bj, L0, ka, kb, tau_a, e.mass, e.inertia) if zeta > 0.0 \
+        else np.zeros((nb, 0))
     return Bonds(
-        i=i.astype(np.int32), j=j.astype(np.int32),
+        i=bi, j=bj,
         gid=gids.copy(),
         gid_i=e.gid[i].copy(), gid_j=e.gid[j].copy(),
         L0=L0, ka=ka, kb=kb, kt=kt, tau_a=tau_a, tau_b=tau_b, tau_t=tau_t,
         u1=to_body(i, n), p1=to_body(i, p), u2=to_body(j, n), p2=to_body(j, p),
         young=young, radius=r, state=np.zeros(nb, np.uint8), f_tensile=f_tensile, f_shear=f_shear,
-        f_yield=f_yield, plastic=np.zeros(nb), damped=bool(zeta > 0.0),
+        f_yield=f_yield, plastic=np.zeros(nb), rot_damping=rot_damping, damped=bool(zeta > 0.0),
         breakable=material.breakable,
         densify_p0=float(material.densification_p0) if material.densifies else 0.0,
     )

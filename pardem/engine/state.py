@@ -22,7 +22,7 @@ ELEMENT_FIELDS = ("x", "v", "w", "q", "radius", "mass", "inertia", "inv_mass", "
 # Per-bond arrays that travel with a bond (i, j are rebuilt from the end gids).
 BOND_FIELDS = ("gid", "gid_i", "gid_j", "L0", "ka", "kb", "kt", "tau_a", "tau_b", "tau_t",
                "u1", "p1", "u2", "p2", "young", "radius", "state", "f_tensile", "f_shear", "f_yield",
-               "plastic")
+               "plastic", "rot_damping")
 
 # Bond states (``Bonds.state``).
 BOND_INTACT, BOND_BROKEN_TENSION, BOND_BROKEN_SHEAR = np.uint8(0), np.uint8(1), np.uint8(2)
@@ -119,7 +119,9 @@ class Bonds:
         any rank holding a bond computes it in the same orientation.
     gid : bond global id.
     L0 : length at creation [m]; ka = E S / L0 [N/m]; kb = E I [N m^2]; kt = G I0 / L0 [N m/rad].
-    tau_a, tau_b, tau_t : damping time constants c/k [s] of the axial, bending and twist modes.
+    tau_a, tau_b, tau_t : damping time constants c/k [s] of the axial, bending and twist modes
+        (``tau_b`` is read by the time-step bound only: the force loop damps the two rotation
+        modes with ``rot_damping``).
     u1, p1, u2, p2 : bond axis (1 -> 2) and a reference vector normal to it at creation,
         stored in the body frame of end 1 (u1, p1) and end 2 (u2, p2).
     young [Pa], radius [m] : the bond's modulus and radius, kept for output and diagnostics.
@@ -129,6 +131,11 @@ class Bonds:
         ``|T|`` (strength times section S; inf = unbreakable), docs/physics.md section 7.
     f_yield [N] : densification threshold ``sigma0 S`` in compression (0 = elastic bond);
         plastic : its plastic (compressive) strain p >= 0.
+    rot_damping : [n, 4] the Rayleigh damping matrix (D11, D12, D21, D22) [s] of the two end
+        rotations (``pardem.physics.beam.rotation_damping_table``), constant per bond (it depends on
+        the bond's constants and the mass and inertia of its ends); [n, 0] when not computed:
+        undamped bonds (no memory spent), or bonds restored from a checkpoint (which does not store
+        it) until ``compute_bonds`` computes it.
     damped : False when every tau is zero (the force loop then skips the damping terms).
     breakable : False when no bond can break (the loop then skips the rupture test);
     densify_p0 : the densification factor p0 of section 7 (0 = no bond densifies).
@@ -156,6 +163,7 @@ class Bonds:
     f_shear: np.ndarray = None
     f_yield: np.ndarray = None
     plastic: np.ndarray = None
+    rot_damping: np.ndarray = None
     damped: bool = True
     breakable: bool = False
     densify_p0: float = 0.0
@@ -166,6 +174,8 @@ class Bonds:
         for name, value in _inelastic_defaults(self.L0.shape[0]).items():
             if getattr(self, name) is None:
                 setattr(self, name, value)
+        if self.rot_damping is None:
+            self.rot_damping = np.zeros((self.L0.shape[0], 0))
 
     def flags(self):
         """The per-run switches of the force loop (keyword arguments of ``unpack``)."""
@@ -190,10 +200,16 @@ class Bonds:
 
         ``i, j`` are left at -1: call ``relink`` next. ``copy=False`` adopts the arrays of a
         single part when they are already unique and ordered. Parts without the inelastic fields
-        (checkpoints written before rupture existed) get intact elastic bonds.
+        (checkpoints written before rupture existed) get intact elastic bonds. ``rot_damping`` is
+        kept when every part with bonds has it, else left out ([n, 0]: ``compute_bonds``
+        recomputes it, bitwise the same, from the constants and the ends' masses).
         """
         n_parts = [len(p["gid"]) for p in parts]
         parts = [{**_inelastic_defaults(n), **p} for p, n in zip(parts, n_parts)]
+        widths = {_rot_damping_width(p) for p, n in zip(parts, n_parts) if n}
+        width = widths.pop() if len(widths) == 1 else 0
+        parts = [p if "rot_damping" in p and _rot_damping_width(p) == width
+                 else {**p, "rot_damping": np.zeros((0 if width else n, width))} for p, n in zip(parts, n_parts)]
         data = _join(parts, BOND_FIELDS, copy)
         _, first = np.unique(data["gid"], return_index=True)
         keep = first[np.lexsort((data["gid_j"][first], data["gid_i"][first]))]
@@ -206,7 +222,7 @@ class Bonds:
     @classmethod
     def empty(cls):
         """No bonds (contact-only runs)."""
-        parts = {k: np.zeros((0, 3) if k in ("u1", "p1", "u2", "p2") else 0,
+        parts = {k: np.zeros((0, 3) if k in ("u1", "p1", "u2", "p2") else (0, 0) if k == "rot_damping" else 0,
                              dtype=np.int64 if k.startswith("gid") else np.uint8 if k == "state"
                              else np.float64) for k in BOND_FIELDS}
         return cls.unpack([parts], damped=False)
@@ -245,6 +261,12 @@ def _inelastic_defaults(n):
     return {"state": np.zeros(n, np.uint8), "f_tensile": np.full(n, np.inf),
             "f_shear": np.full(n, np.inf), "f_yield": np.zeros(n), "plastic": np.zeros(n)}
 
+
+
+def _rot_damping_width(part):
+    """Columns of a ``pack`` dict's ``rot_damping`` (0 when it has none)."""
+    d = part.get("rot_damping")
+    return d.shape[1] if d is not None and d.ndim == 2 else 0
 
 
 def _join(parts, names, copy):

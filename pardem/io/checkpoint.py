@@ -221,27 +221,79 @@ def _collective(comm, path, tmp, fn):
 _NO_FALLOCATE = (errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL, errno.ENODEV)
 
 
+_KEEP_SIZE, _PUNCH_HOLE = 0x01, 0x02     # FALLOC_FL_* of linux/falloc.h
+
+
+def _fallocate(fd, mode, offset, nbytes):
+    """fallocate(2); False where the C library or the file system has none (never emulated by
+    writing zeros), OSError for a failure (ENOSPC, EDQUOT, EFBIG)."""
+    try:
+        fallocate = ctypes.CDLL(None, use_errno=True).fallocate
+    except (OSError, AttributeError):
+        return False
+    fallocate.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int64, ctypes.c_int64]
+    if fallocate(fd, mode, int(offset), int(nbytes)) != 0:
+        code = ctypes.get_errno()
+        if code in _NO_FALLOCATE:
+            return False
+        raise OSError(code, os.strerror(code))
+    return True
+
+
 def _reserve(tmp, nbytes):
     """Create ``tmp`` and allocate ``nbytes`` for it on disk, so that a full disk, a quota or a file
     size limit fails here (OSError: ENOSPC, EDQUOT, EFBIG) and not inside HDF5, whose state after
     a failed write cannot be closed cleanly (HDF5 1.10 crashes when the file is released). The
-    space is released at once (a probe, not a reservation); skipped where the file system has no
-    fallocate (never emulated by writing zeros)."""
+    space is released at once (a probe: HDF5 truncates the file it creates; ``_hold`` then keeps
+    the space)."""
     fd = os.open(tmp, os.O_CREAT | os.O_WRONLY | os.O_TRUNC, 0o644)
     try:
-        try:
-            libc = ctypes.CDLL(None, use_errno=True)
-            fallocate = libc.fallocate
-        except (OSError, AttributeError):
-            return
-        fallocate.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int64, ctypes.c_int64]
-        if fallocate(fd, 0, 0, int(nbytes)) != 0:
-            code = ctypes.get_errno()
-            if code not in _NO_FALLOCATE:
-                raise OSError(code, os.strerror(code))
+        _fallocate(fd, 0, 0, nbytes)
         os.ftruncate(fd, 0)     # back to an empty file: a kill now leaves an empty .tmp
     finally:
         os.close(fd)
+
+
+def _hold(tmp, nbytes):
+    """Allocate the first ``nbytes`` of ``tmp`` on disk, its size unchanged (FALLOC_FL_KEEP_SIZE:
+    HDF5 sees the file it wrote), right after HDF5 created it and before it wrote more than its
+    superblock (a few hundred bytes in the file's first block). HDF5's writes then land in blocks
+    that are already the file's, so a disk filled by another process after ``_reserve``'s probe no
+    longer fails them (file systems that write in place: ext4, XFS, tmpfs; not copy-on-write ones
+    such as btrfs or ZFS). Raises OSError (ENOSPC, EDQUOT) when the space is not there; the file,
+    nearly empty, still closes. ``_release`` gives back what the file did not use."""
+    fd = os.open(tmp, os.O_WRONLY)
+    try:
+        _fallocate(fd, _KEEP_SIZE, 0, nbytes)
+    finally:
+        os.close(fd)
+
+
+def _held(comm, tmp, nbytes):
+    """Collective, inside the HDF5 file opened with the mpio driver: ``_hold`` on rank 0, and its
+    OSError raised on every rank (so that every rank leaves the file, and closes it, together)."""
+    error = None
+    if comm.is_root:
+        try:
+            _hold(tmp, nbytes)
+        except OSError as exc:
+            error = (exc.errno, exc.strerror)
+    error = comm.bcast(error)
+    if error is not None:
+        raise OSError(*error)
+
+
+def _release(fd, nbytes):
+    """Free the blocks ``_hold`` allocated past the end of the written file ``fd`` (its size
+    unchanged): a hole punched there (tmpfs, XFS) and a truncation to its own size (ext4 frees
+    them so). Best effort: a failure only leaves them allocated until the file is removed."""
+    size = os.fstat(fd).st_size
+    try:
+        if nbytes > size:
+            _fallocate(fd, _PUNCH_HOLE | _KEEP_SIZE, size, nbytes - size)
+        os.ftruncate(fd, size)
+    except OSError:
+        pass
 
 
 def _estimated_size(everyone, series, all_attrs):
@@ -335,6 +387,7 @@ def write_checkpoint(path, comm, groups, series, attrs, mode="auto", check_finit
     if parallel:
         def write_all():
             with h5py.File(tmp, "w", driver="mpio", comm=comm.comm) as f:
+                _held(comm, tmp, size)
                 create(f)
                 fill(f, collective=True)
                 if comm.is_root:
@@ -347,6 +400,7 @@ def write_checkpoint(path, comm, groups, series, attrs, mode="auto", check_finit
     else:
         def create_file():
             with h5py.File(tmp, "w") as f:
+                _hold(tmp, size)
                 create(f)
         _collective(comm, path, tmp, create_file if comm.is_root else None)
 
@@ -365,6 +419,7 @@ def write_checkpoint(path, comm, groups, series, attrs, mode="auto", check_finit
 
     def publish():
         with open(tmp, "rb+") as fh:
+            _release(fh.fileno(), size)
             os.fsync(fh.fileno())
         os.replace(tmp, path)
         dfd = os.open(os.path.dirname(os.path.abspath(path)), os.O_RDONLY)

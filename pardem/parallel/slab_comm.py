@@ -99,7 +99,18 @@ def _select(arrays, rows):
 
 
 def _concat(parts):
-    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    """Join pack dicts. Parts without rows are left out (a rank without bonds packs a zero-width
+    ``rot_damping``); a ``rot_damping`` that not every part carries is dropped ([n, 0]: the bonds
+    recompute it, ``pardem.physics.beam.compute_bonds``)."""
+    full = [p for p in parts if len(next(iter(p.values())))] or parts[:1]
+    out = {}
+    for k in full[0]:
+        arrays = [p[k] for p in full]
+        if k == "rot_damping" and len({a.shape[1:] for a in arrays}) > 1:
+            out[k] = np.zeros((sum(len(a) for a in arrays), 0))
+        else:
+            out[k] = np.concatenate(arrays)
+    return out
 
 
 

@@ -26,7 +26,9 @@ per mode, ``k`` and ``m`` that mode's stiffness and inertia (axial: ``ka``, ``m*
 ``I*``). The two end rotations ``th1``, ``th2`` carry two coupled modes of the free pair, bending
 (the ends turning opposite ways, no shear force) and transverse (the same way, carrying the shear
 force); they are damped together by ``th_k + sum_l D_kl th_l'`` with the Rayleigh matrix of
-``rotation_damping``, which gives both the ratio ``zeta`` for any pair of elements. (One constant
+``rotation_damping``, which gives both the ratio ``zeta`` for any pair of elements. ``D`` is constant
+per bond: it is computed once (``rotation_damping_table``, stored in ``Bonds.rot_damping``) with the
+very expression of ``rotation_damping``, so the forces are bitwise those of a per-step evaluation. (One constant
 ``tau_b`` for both, as before, gave the transverse mode ``2.05 zeta`` for touching identical spheres
 and, for R2 = 1.5 R1, 0.69 and 2.10 zeta; ``tests/test_damping_modes.py``.) The damping forces
 balance like the elastic ones and vanish for any rigid motion.
@@ -124,6 +126,33 @@ def rotation_damping(tau_a, ka, kb, l0, m1, m2, i1, i2):
             c * (2.0 * M12 - M11), beta + c * (2.0 * M22 - M12))
 
 
+ROT_DAMPING_WIDTH = 4   # columns of ``rotation_damping_table``: D11, D12, D21, D22
+
+
+@njit(cache=True, error_model="numpy")
+def rotation_damping_table(bi, bj, L0, ka, kb, tau_a, mass, inertia):
+    """``rotation_damping`` of every bond: [n, ROT_DAMPING_WIDTH] (D11, D12, D21, D22) [s].
+
+    bi, bj [n] : rows of the ends in ``mass`` [kg] and ``inertia`` [kg m^2]; L0 [m], ka [N/m],
+    kb [N m^2], tau_a [s] : [n] bond constants. Each row depends on the bond's constants and its
+    ends' mass and inertia only, all fixed during a run, so the force loop reads it instead of
+    evaluating it (three square roots) every step; the expression is the one the loop used, so
+    the forces keep their bits.
+    """
+    n = bi.shape[0]
+    out = np.empty((n, ROT_DAMPING_WIDTH))
+    for b in range(n):
+        i = bi[b]
+        j = bj[b]
+        d11, d12, d21, d22 = rotation_damping(tau_a[b], ka[b], kb[b], L0[b], mass[i], mass[j],
+                                              inertia[i], inertia[j])
+        out[b, 0] = d11
+        out[b, 1] = d12
+        out[b, 2] = d21
+        out[b, 3] = d22
+    return out
+
+
 # layout of ``beam_bond``'s ``out`` row (module constants: Numba compiles them in)
 OUT_FORCE_1 = 0     # [3] force on end 1 [N] (end 2 gets its opposite)
 OUT_MOMENT_1 = 3    # [3] moment on end 1 [N m]
@@ -134,16 +163,15 @@ OUT_WIDTH = 11
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def beam_bond(b, i, j, x, v, w, rot, mass, inertia, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1, p1,
-              u2, p2, out, damped, densify=False, f_yield=None, plastic=None, p0=0.0):
+def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_t, rot_damping, u1, p1, u2, p2, out,
+              damped, densify=False, f_yield=None, plastic=None, p0=0.0):
     """Force on end 1 and moments on ends 1 and 2 of bond ``b``; writes ``out`` [OUT_WIDTH]: F1, M1, M2
     (``OUT_FORCE_1``, ``OUT_MOMENT_1``, ``OUT_MOMENT_2``) and, for the rupture test, the axial force
     ``out[OUT_AXIAL]`` (tension positive) and the shear force magnitude ``out[OUT_SHEAR]`` [N]
     (both elastic: damping excluded, the strength criterion of docs/physics.md section 7).
 
-    ``mass``, ``inertia`` [kg, kg m^2] of the elements (rows ``i``, ``j``) give the damping of the
-    two rotation modes (``rotation_damping``, with ``2 zeta`` from ``tau_a``); ``tau_b`` is not
-    read (it stays the bonds' bending time constant for the time-step bound).
+    ``rot_damping`` [n, ROT_DAMPING_WIDTH] : the damping matrix of the two rotation modes of each
+    bond (``rotation_damping_table``; read only when ``damped``).
     ``damped`` and ``densify`` must be compile-time constants at the call site (True or False
     literals): a loop without them carries no trace of their terms. With ``densify``, a bond with
     ``f_yield[b] > 0`` yields in compression and updates ``plastic[b]`` (``densified_extension``).
@@ -213,9 +241,11 @@ def beam_bond(b, i, j, x, v, w, rot, mass, inertia, L0, ka, kb, kt, tau_a, tau_b
         wc0 = (n1 * dv2 - n2 * dv1) * inv_L
         wc1 = (n2 * dv0 - n0 * dv2) * inv_L
         wc2 = (n0 * dv1 - n1 * dv0) * inv_L
-        # the two rotation modes damped at ratio zeta each (rotation_damping)
-        d11, d12, d21, d22 = rotation_damping(ta, ka[b], kb[b], l0, mass[i], mass[j],
-                                              inertia[i], inertia[j])
+        # the two rotation modes damped at ratio zeta each (rotation_damping, tabulated)
+        d11 = rot_damping[b, 0]
+        d12 = rot_damping[b, 1]
+        d21 = rot_damping[b, 2]
+        d22 = rot_damping[b, 3]
         e0 = w[i, 0] - wc0
         e1 = w[i, 1] - wc1
         e2 = w[i, 2] - wc2
@@ -260,8 +290,8 @@ def _bond_loop(damped, breakable, densify):
     """The loop over all bonds with damping, rupture and densification compiled in or out (the
     flags are frozen as constants)."""
     @njit(cache=True, error_model="numpy")
-    def loop(bi, bj, x, v, w, rot, mass, inertia, f, t, L0, ka, kb, kt, tau_a, tau_b, tau_t, u1,
-             p1, u2, p2, state, f_tensile, f_shear, f_yield, plastic, p0, n_owned):
+    def loop(bi, bj, x, v, w, rot, f, t, L0, ka, kb, kt, tau_a, tau_t, rot_damping, u1, p1, u2, p2,
+             state, f_tensile, f_shear, f_yield, plastic, p0, n_owned):
         out = np.empty(OUT_WIDTH)
         energy = 0.0
         broken = 0
@@ -272,8 +302,8 @@ def _bond_loop(damped, breakable, densify):
                     continue
             i = bi[b]
             j = bj[b]
-            e = beam_bond(b, i, j, x, v, w, rot, mass, inertia, L0, ka, kb, kt, tau_a, tau_b,
-                          tau_t, u1, p1, u2, p2, out, damped, densify, f_yield, plastic, p0)
+            e = beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_t, rot_damping, u1, p1,
+                          u2, p2, out, damped, densify, f_yield, plastic, p0)
             if breakable:
                 mode = rupture_mode(out[OUT_AXIAL], out[OUT_SHEAR], f_tensile[b], f_shear[b])
                 if mode != 0:
@@ -319,11 +349,14 @@ def compute_bonds(bonds, elements):
 
     Returns (elastic energy [J], number of bonds that broke in this call, how many of them this
     rank counts: those whose first end it owns). Damping, rupture and densification are compiled out of the loop when
-    no bond uses them.
+    no bond uses them. Damped bonds without their ``rot_damping`` table (restored from a
+    checkpoint, which does not store it) get it here, from the ends' mass and inertia.
     """
     b, e = bonds, elements
+    if b.damped and b.rot_damping.shape[1] != ROT_DAMPING_WIDTH:
+        b.rot_damping = rotation_damping_table(b.i, b.j, b.L0, b.ka, b.kb, b.tau_a, e.mass, e.inertia)
     densify = b.densify_p0 > 0.0
     kernel = bond_loop(b.damped, b.breakable, densify)
-    return kernel(b.i, b.j, e.x, e.v, e.w, e.rot, e.mass, e.inertia, e.f, e.t, b.L0, b.ka, b.kb, b.kt,
-                  b.tau_a, b.tau_b, b.tau_t, b.u1, b.p1, b.u2, b.p2, b.state, b.f_tensile,
-                  b.f_shear, b.f_yield, b.plastic, b.densify_p0 if densify else 1.0, e.n_owned)
+    return kernel(b.i, b.j, e.x, e.v, e.w, e.rot, e.f, e.t, b.L0, b.ka, b.kb, b.kt, b.tau_a, b.tau_t,
+                  b.rot_damping, b.u1, b.p1, b.u2, b.p2, b.state, b.f_tensile, b.f_shear, b.f_yield,
+                  b.plastic, b.densify_p0 if densify else 1.0, e.n_owned)

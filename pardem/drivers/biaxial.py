@@ -1,0 +1,263 @@
+"""2D biaxial compression with rigid granular platens and flexible membranes (python -m pardem.drivers.biaxial).
+
+    python -m pardem.drivers.biaxial [--config deck.toml] [--set section.key=value ...] [--out DIR]
+        [--steps N] [--restart CHECKPOINT.h5] [--quiet]
+    mpiexec -n 2 python -m pardem.drivers.biaxial --config drivers/biaxial_short.toml --out runs/bx
+
+For each confining pressure pc: a 2D packing prepared frictionless at pc in a periodic cell, opened,
+cut between two rigid granular platens, wrapped in two flexible membranes loaded by pc, then
+compressed between the platens at a constant axial strain rate with friction on
+(``pardem.protocols.biaxial`` describes the protocol, the conventions and the measures). The
+deck's defaults are the 10,000-grain case of ``drivers/biaxial.toml``.
+
+Writes ``DIR/biaxial.csv`` and ``DIR/biaxial.h5`` (the series with units: step, time [s],
+pressure_index, pc [Pa], eps_axial, eps_vol (compression / contraction positive), sigma_axial,
+sigma_lateral, q, s [Pa], sin_phi, sigma_axial_platens [Pa], coordination, sliding_fraction,
+membrane_grains, n_grains, kinetic_energy [J]), ``DIR/biaxial.json`` (per pressure: the
+preparation, the sample, peak and residual friction angles, the dilatancy angle, the lateral
+stress error, and per localisation window the shear band (angle, width in mean diameters,
+centre) with the Mohr-Coulomb, Roscoe and Arthur predictions; the deck, ``finished``,
+``restarted_from``, ``checkpoints``, timings), ``DIR/biaxial.png`` (q / pc and eps_v against
+eps_a), ``DIR/localisation-P-W.png`` (maps of the incremental shear strain and grain rotations of
+window W of pressure P) and ``DIR/localisation-P-W.vtu`` (the same fields for ParaView),
+checkpoints in ``DIR/checkpoints`` and ParaView snapshots in ``DIR/paraview``
+(``output.vtk_every``). ``--restart DIR/checkpoints/checkpoint-<step>.h5`` continues a run (bit
+for bit on the same number of ranks once the sample is opened; a checkpoint of the preparation
+restarts its relaxation); ``--steps N`` stops it at step N (counted from the run's start).
+
+Exit codes: 0 done, 1 unexpected error (all ranks stop), 2 bad input (one line naming the field),
+3 the run became unstable.
+"""
+import os
+import time
+
+import numpy as np
+
+import pardem
+from pardem.config import DeckError
+from pardem.drivers import cli
+from pardem.drivers.runner import GranularDriver, run_protocol
+from pardem.io import biaxial_plot
+from pardem.parallel.communicator import Communicator
+from pardem.physics import shear_band
+from pardem.protocols import biaxial
+from pardem.protocols import granular_output as gout
+
+RESTART_MAY_CHANGE = ("run.progress_seconds", "run.watchdog_seconds", "run.slab_axis")
+SNAP_KEYS = ("gid", "x", "theta", "pair_i", "pair_j", "cements")
+
+
+def parser(comm=None):
+    return cli.driver_parser("python -m pardem.drivers.biaxial", __doc__.split("\n\n")[0], biaxial.SCHEMA,
+                             comm=comm, steps_help=gout.STEPS_HELP,
+                             restart_help=gout.restart_help(RESTART_MAY_CHANGE),
+                             out_default="runs/biaxial-<timestamp>",
+                             deck_title="deck keys and defaults (drivers/biaxial.toml)",
+                             epilog="outputs: DIR/biaxial.csv, biaxial.h5, biaxial.json, biaxial.png, "
+                                    "localisation-P-W.png/.vtu, checkpoints/, paraview/")
+
+
+def main(argv=None):
+    comm = Communicator()
+    return cli.run_driver(comm, lambda comm, args: run_protocol(comm, args, Biaxial()), parser(comm).parse_args(argv))
+
+
+def fresh_state(index, pc):
+    return {"index": index, "pc": pc, "stage": "prepare", "prep": None, "geo": None, "settle_start": None,
+            "reference": None, "events_done": [], "windows": [], "membrane": None}
+
+
+class Biaxial(GranularDriver):
+    name = "biaxial"
+    schema = biaxial.SCHEMA
+    summary_name = "biaxial.json"
+    error_types = (ValueError,)
+    restart_may_change = RESTART_MAY_CHANGE
+    restart_what = "run.slab_axis, run.progress_seconds, run.watchdog_seconds"
+    columns, units, description, int_columns = biaxial.COLUMNS, biaxial.UNITS, biaxial.DESCRIPTION, biaxial.INT_COLUMNS
+    slab_axes = "xy"
+
+    def __init__(self):
+        self.mem = self.platens = None
+        self.pending = {}        # localisation window -> snapshot of its start
+
+    def check(self, run, deck):
+        if deck["run"]["slab_axis"] == "z":
+            raise DeckError("run.slab_axis = 'z': expected 'x' or 'y' (the grains lie in the plane z = 0)")
+
+    def build(self, run):
+        pcs = run.deck["loading"]["confining_pressures"]
+        run.state = {"driver": "biaxial", "results": [], "current": fresh_state(0, pcs[0])}
+        return biaxial.isotropic.build_gas(run.comm, biaxial.iso_deck(run.deck))
+
+    def restore(self, run):
+        case = super().restore(run)
+        cur = run.state["current"]
+        if cur["stage"] in ("settle", "load"):
+            self.mem, *self.platens = biaxial.install(case, run.deck, cur["pc"], cur["geo"], cur["membrane"],
+                                                      moving=cur["stage"] == "load", restored=True)
+        series = run.meta["series"]
+        for w in {int(k.split("_")[1]) for k in series if k.startswith("window_")}:
+            snap = {k: np.asarray(series[f"window_{w}_{k}"]) for k in SNAP_KEYS}
+            snap["x"] = snap["x"].reshape(-1, 2)
+            self.pending[w] = snap
+        return case
+
+    def protocol_state(self, run):
+        cur = dict(run.state["current"])
+        cur["membrane"] = self.mem.state() if self.mem is not None else None
+        return {**run.state, "current": cur}
+
+    def payload(self, run):
+        groups, series, attrs = super().payload(run)
+        for w, snap in self.pending.items():
+            for k in SNAP_KEYS:
+                series[f"window_{w}_{k}"] = np.asarray(snap[k]).ravel()
+        return groups, series, attrs
+
+    def start(self, run):
+        self.open_series(run)
+        d = run.deck
+        run.progress.say(f"pardem {pardem.__version__} biaxial (2D): {d['sample']['n']} grains on {run.comm.size} "
+                         f"rank(s), dt = {run.sim.dt:.4g} s; confining pressures "
+                         f"{', '.join(f'{p:.3g}' for p in d['loading']['confining_pressures'])} Pa; output {run.out}"
+                         + (f"; restarted from {run.args.restart} (step {run.sim.step_count}, "
+                            f"{run.state['current']['stage']})" if run.meta else ""))
+
+    # -- the run ------------------------------------------------------------------------
+
+    def execute(self, run):
+        deck, progress, stop = run.deck, run.progress, run.args.steps
+        pcs = deck["loading"]["confining_pressures"]
+        while run.state["current"]["index"] < len(pcs):
+            cur = run.state["current"]
+            k, pc = cur["index"], cur["pc"]
+            if cur["stage"] == "prepare":
+                if k > 0 and not run.case.sim.cell.periodic[1]:     # a new gas after the last loading
+                    step, t = run.sim.step_count, run.sim.time
+                    run.case = biaxial.isotropic.build_gas(run.comm, biaxial.iso_deck(deck))
+                    biaxial.continue_clock(run.sim, step, t)
+                iso = biaxial.iso_deck(deck)
+                t0 = time.perf_counter()
+                run.case, info = biaxial.isotropic.prepare(run.comm, iso, float(pc), case=run.case, progress=progress)
+                b = info["balance"]
+                cur["prep"] = {"steps": info["steps"], "converged": info["converged"], "pressure": b["pressure"],
+                               "unbalanced": b["unbalanced"], "kinetic": b["kinetic"],
+                               "seconds": time.perf_counter() - t0}
+                progress.say(f"pc = {pc:.4g} Pa: prepared in {info['steps']} steps ({cur['prep']['seconds']:.1f} s), "
+                             f"p = {b['pressure']:.4g} Pa, converged: {info['converged']}")
+                cur["stage"] = "open"
+                if stop is not None and run.sim.step_count >= stop:
+                    raise gout.StepLimit(f"stopped at step {run.sim.step_count} (--steps {stop}), after the preparation")
+            if cur["stage"] == "open":
+                run.case, geo = biaxial.open_sample(run.comm, run.case, deck)
+                cur["geo"] = geo
+                biaxial.start_loading(run.case, deck, geo, None)
+                self.mem, *self.platens = biaxial.install(run.case, deck, pc, geo)
+                cur["settle_start"] = run.sim.step_count
+                cur["stage"] = "settle"
+                progress.say(f"opened: {geo['n_grains']} of {geo['n_before']} grains kept, platens of "
+                             f"{len(geo['bottom'])} and {len(geo['top'])} grains, membranes of "
+                             f"{len(self.mem.chains['left'])} and {len(self.mem.chains['right'])} grains; "
+                             f"friction {deck['material']['friction']}")
+            if cur["stage"] == "settle":
+                biaxial.settle(run.case, deck, cur, run.operations, stop)
+                cur["reference"] = biaxial.reference(run.case, self.mem, cur["geo"], deck)
+                biaxial.set_moving(self.platens, deck, cur["geo"])
+                cur["stage"] = "load"
+            if cur["stage"] == "load":
+                total = biaxial.loading_steps(deck, run.sim.dt)
+                progress.total = cur["reference"]["step"] + total
+                progress.say(f"loading pc = {pc:.4g} Pa to eps_a = {deck['loading']['strain']} at "
+                             f"{deck['loading']['strain_rate']} 1/s ({total} steps)")
+
+                def on_row(row):
+                    run.series.append(row)
+                    progress.report(row["step"], f"pc {row['pc']:.3g}: eps_a = {row['eps_axial']:.4f}, q/pc = "
+                                                 f"{row['q'] / row['pc']:.4f}, eps_v = {row['eps_vol']:.3e}, "
+                                                 f"sigma_l/pc = {row['sigma_lateral'] / row['pc']:.4f}, "
+                                                 f"sliding {row['sliding_fraction']:.3f}")
+                biaxial.load(run.case, deck, cur, self.mem, self.platens, on_row, run.operations, stop,
+                             on_event=lambda step: self.event(run, step))
+                rows = [r for r in run.series.rows if r["pressure_index"] == k]
+                result = {"pc": pc, "preparation": cur["prep"], "sample": {kk: cur["geo"][kk] for kk in
+                          ("n_grains", "n_before", "y_bottom", "y_top", "mean_radius")},
+                          "platen_grains": [len(cur["geo"]["bottom"]), len(cur["geo"]["top"])],
+                          **biaxial.angles(rows, deck["loading"]["residual_fraction"])}
+                result["windows"] = [dict(w, predictions=shear_band.predictions(result["phi_peak_deg"],
+                                                                                result["psi_max_deg"]))
+                                     for w in cur["windows"]]
+                run.state["results"].append(result)
+                progress.say(f"pc = {pc:.4g} Pa: phi_peak = {result['phi_peak_deg']:.2f} deg at eps_a = "
+                             f"{result['strain_at_peak']:.4f}, phi_residual = {result['phi_residual_deg']:.2f} deg, "
+                             f"psi_max = {result['psi_max_deg']:.2f} deg")
+                self.mem = self.platens = None
+                run.state["current"] = fresh_state(k + 1, pcs[k + 1] if k + 1 < len(pcs) else None)
+
+    def event(self, run, step):
+        """A localisation window's start or end at ``step`` (collective)."""
+        deck, cur = run.deck, run.state["current"]
+        events = biaxial.event_steps(deck, run.sim.dt, cur["reference"]["step"])
+        snap = None
+        for w, (s0, s1) in enumerate(events):
+            if step == s1 and w in self.pending:
+                snap = snap or biaxial.snapshot(run.sim)
+                ref = self.pending.pop(w)
+                d_mean = 2.0 * cur["geo"]["mean_radius"]
+                field = biaxial.window_field(ref, snap, cur["geo"]["bottom"] + cur["geo"]["top"], d_mean,
+                                             deck["localisation"]["band_fraction"])
+                eps = deck["localisation"]["strains"][w]
+                band = field["band"]
+                cur["windows"].append({"window": w, "strain_end": eps, "window_strain": deck["localisation"]["window"],
+                                       "band": None if band is None else {k: band[k] for k in
+                                                                          ("angle_deg", "width_d", "centre", "direction",
+                                                                           "peak", "background")},
+                                       "mean_abs_spin": float(np.mean(np.abs(field["spin"]))),
+                                       "cements_broken": int(field["cements_broken"].sum() // 2),
+                                       "files": [f"localisation-{cur['index']}-{w}.png", f"localisation-{cur['index']}-{w}.vtu"]})
+                radius = self._radii(run, snap["gid"])
+                if run.comm.is_root:
+                    base = os.path.join(run.out, f"localisation-{cur['index']}-{w}")
+                    biaxial_plot.write_fields(base + ".vtu", field, snap["gid"], radius)
+                    if deck["output"]["plot"]:
+                        biaxial_plot.maps(base + ".png", field, radius,
+                                          f"pc = {cur['pc']:.3g} Pa, eps_a {eps - deck['localisation']['window']:.3f}"
+                                          f" -> {eps:.3f}")
+        for w, (s0, s1) in enumerate(events):
+            if step == s0:
+                snap = snap or biaxial.snapshot(run.sim)
+                self.pending[w] = snap
+
+    @staticmethod
+    def _radii(run, gids):
+        """The radii of ``gids`` (collective; rank 0 gets them in that order)."""
+        e, n = run.sim.elements, run.sim.elements.n_owned
+        parts = run.comm.allgather((e.gid[:n].copy(), e.radius[:n].copy()))
+        g = np.concatenate([p[0] for p in parts])
+        r = np.concatenate([p[1] for p in parts])
+        return r[np.argsort(g)][np.searchsorted(np.sort(g), gids)]
+
+    def summary(self, run):
+        return {"pressures": run.state["results"], "n_elements": run.deck["sample"]["n"],
+                "conventions": {"stress": "Love-Weber stress of all contacts over the membrane polygon's area "
+                                          "times the thickness t (the mean diameter); compression positive",
+                                "eps_vol": "1 - A/A0, contraction positive", "eps_axial": "1 - H/H0",
+                                "sin_phi": "q / (sigma_axial + sigma_lateral)",
+                                "dilatancy": "sin psi = -d eps_v / (2 d eps_a - d eps_v), largest over the loading",
+                                "band_angle": "from the x axis (the minor principal stress direction), degrees"},
+                "series": ["biaxial.csv", "biaxial.h5"]}
+
+    def finish(self, run, summary):
+        if run.deck["output"]["plot"] and run.series.rows:
+            biaxial_plot.curves(os.path.join(run.out, "biaxial.png"), run.series.rows)
+        if run.stopped:
+            print(f"{run.stopped}; continue with --restart "
+                  f"{run.writer.written[-1] if run.writer.written else '(no checkpoint: checkpoint.at_end = false)'}",
+                  flush=True)
+        else:
+            run.progress.say(f"done in {summary['wall_seconds']:.1f} s; outputs in {run.out}")
+        return cli.EXIT_OK
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,646 @@
+"""Point-load response function of a 2D granular packing (issue 13 item 4; driver
+``python -m pardem.drivers.response``).
+
+Protocol (any number of ranks; every step is collective):
+
+1. **Packing.** A 2D packing (``[domain] dimension = 2`` of ``pardem.protocols.isotropic``) is
+   prepared frictionless in a periodic cell at ``preparation.pressure`` by the isotropic protocol
+   (servo and FIRE until its three equilibrium criteria hold; the cell is then fixed).
+2. **Replication** (``replicate.copies = [k_x, k_y]``, ``pardem.engine.replicate``): k_x x k_y copies
+   of the periodic packing side by side, gids renumbered, contact histories copied: a larger
+   system in the same equilibrium without re-equilibrating.
+3. **Boundaries.** Periodicity is removed along y (``pardem.engine.open_cell.open_axes``), kept
+   along x. Grains whose centres lie within ``boundary.row_thickness`` (default the largest
+   diameter, so that no free grain touched a grain across the former y boundary) of the lines
+   ``y = y_lo`` and ``y = y_lo + L_y`` form the bottom and the top rows. The bottom row is
+   clamped (``Clamp``: x, y and the rotation held: a rigid rough base). The top row, by
+   ``boundary.top``:
+
+   * ``"free"`` (default): each of its grains keeps, as a constant load (``DeadLoad``), minus the
+     force it has just after the opening (what its contacts across the former boundary gave it),
+     and its x and rotation are held (a piston moving along y only), so it is in equilibrium and
+     the top is a surface under the confining stress, grain by grain, with ``u_x = 0``: the extra
+     load all goes down to the bottom row (Flamant's setting, but for the tangential condition);
+   * ``"rigid"``: one body moving vertically (``RigidRow``: x and rotation held, one vertical
+     acceleration) under a constant force equal to the packing's push on it in the reference
+     state. It also takes none of the extra load at equilibrium, but a load on a grain under it
+     mostly unloads that grain's contact with the row, which then presses down on the whole width:
+     the response near the top is then nearly uniform (measured: at 2 d below the load the
+     profile is flat over 16 d in a 400-grain packing);
+   * ``"fixed"``: clamped like the bottom row: the extra load splits between the two rows
+     (reported; a load just under it goes mostly into it).
+4. **Reference.** Friction ``load.friction`` is switched on (tangential history zero, so the forces
+   do not change), contacts undamped, global viscous damping ``relax.damping`` (``"auto"``: twice
+   the lowest angular frequency of the layer, ``pi c / (2 H)``, with ``c = sqrt(S / rho_b)`` from
+   the contacts' affine stiffness ``S`` and the bulk density ``rho_b``), relaxed until the mean
+   unbalanced force is below ``relax.force_tolerance`` of the mean contact force and the kinetic
+   energy below ``relax.kinetic_tolerance`` (``pardem.protocols.isotropic.relax``).
+5. **Load.** The grain at the top centre (the highest grain not held by a row, the top row's
+   grains included with ``"free"``, whose centre lies within one mean diameter of
+   ``x = x_lo + L_x / 2``) gets the extra force ``(0, -F, 0)`` with
+   ``F = load.fraction`` times the mean contact force (``ExternalForce``).
+6. **Dynamic response.** The run goes on undamped; at the times ``dynamic.times`` (in units of the
+   transit time ``H / c``) the response is recorded.
+7. **Static response.** The damping is switched on again and the packing relaxes to the
+   equilibrium criteria of step 4.
+
+Measures (``pardem.physics.response``): per grain the change of the Love-Weber moment
+``dM_i`` [N m] from the reference state (reference arms, change of the contact forces; its module
+docstring derives the force balance), binned in horizontal layers of height
+``output.layer_height`` mean diameters and x bins of ``output.x_bin`` mean diameters centred on the
+loaded grain: the vertical stress change ``dsigma_yy = sum dM_yy / (dx h t)`` [Pa] (tension
+positive: the load gives a negative change) against x at each depth ``z`` below the loaded grain's
+centre, with ``t`` the thickness of pardem's 2D stress convention (the mean diameter). Per depth:
+the transmitted force ``-t sum dsigma_yy dx`` [N] over F, the profile's second-moment width and half
+width at half maximum; against depth: the fits ``w = c z`` (elastic) and ``w = sqrt(2 D z)``
+(diffusive). The same measures for Flamant's half-plane ``sigma_yy = -2 F z^3 / (pi t r^4)`` (with
+the periodic images of the load, averaged over the same x bins) and for an elastic layer of the
+packing's height below the load on a rigid base (``pardem.physics.flamant.layer_sigma_zz``,
+Fourier series, 2D Poisson ratio ``comparison.poisson``). The bottom row, a rigid or fixed top row
+and the loaded grain are left out of the bins.
+"""
+import math
+import time
+
+import numpy as np
+
+from pardem.config import DeckError, Field, Schema, auto_or, boolean, choice, number, positive
+from pardem.engine import fixes as fx
+from pardem.engine import granular
+from pardem.engine.open_cell import open_axes
+from pardem.engine.replicate import replicate
+from pardem.parallel.exact_sum import exact_sum
+from pardem.physics import flamant
+from pardem.physics import response as rsp
+from pardem.physics.contact_frame import pair_geometry
+from pardem.protocols import deck_checks as dc
+from pardem.protocols import isotropic as iso
+from pardem.protocols.granular_output import CHECKPOINT_SECTION, run_section
+
+
+def _copies_value(name, v):
+    if (not isinstance(v, (list, tuple)) or len(v) != 2
+            or any(isinstance(k, bool) or not isinstance(k, (int, float)) or k != int(k) or not 1 <= k <= 100
+                   for k in v)):
+        raise DeckError(f"{name} = {v!r}: expected [k_x, k_y], two integers in [1, 100] (copies along x and y)")
+    return [int(k) for k in v]
+
+
+_copies_value.options = None
+
+
+def _times_value(name, v):
+    if (not isinstance(v, (list, tuple)) or len(v) > 50
+            or any(isinstance(k, bool) or not isinstance(k, (int, float)) or not 0.0 < k <= 100.0 for k in v)):
+        raise DeckError(f"{name} = {v!r}: expected a list of at most 50 times in (0, 100] (units of the "
+                        "transit time H / c); [] for none")
+    return sorted(float(k) for k in v)
+
+
+_times_value.options = None
+
+_PREP = {k: f for k, f in iso.SCHEMA["preparation"].items() if k != "pressures"}
+_PREP["pressure"] = Field(1e6, positive(), "pressure p of the frictionless preparation [Pa] "
+                                           "(periodic cell, isotropic protocol)")
+_PREP["max_steps"] = Field(400000, number(lo=1, lo_open=False, integer=True),
+                           "largest number of steps of the preparation")
+
+
+def sample_checks(deck):
+    """One fraction per radius; masses representable; the memory of the replicated packing."""
+    s = deck["sample"]
+    if len(s["fractions"]) != len(s["radii"]):
+        raise DeckError(f"sample.fractions has {len(s['fractions'])} entries: expected one per radius "
+                        f"({len(s['radii'])}) of sample.radii")
+    k = deck["replicate"]["copies"]
+    r_min, r_max = min(s["radii"]), max(s["radii"])
+    mean_volume = sum(f * 4.0 / 3.0 * np.pi * dc.cube(r) for f, r in zip(s["fractions"], s["radii"])) \
+        / sum(s["fractions"])
+    dc.granular_checks(float(s["n"]) * k[0] * k[1], s["density"], r_min, r_max, mean_volume,
+                       "sample.n, replicate.copies, sample.radii")
+
+
+def run_checks(deck):
+    """A normal time step; the step caps within ``MAX_STEPS``; the drag below one velocity per step;
+    a row thinner than the packing."""
+    s, mat = deck["sample"], deck["material"]
+    dt = deck["run"]["dt_fraction"] * iso.rayleigh_time_step(min(s["radii"]), s["density"],
+                                                             mat["shear_modulus"], mat["poisson"])
+    dc.check_normal(dt, "the time step", "s", "run.dt_fraction, material.shear_modulus, sample.density")
+    dc.check_steps(deck["preparation"]["max_steps"] + 3 * deck["relax"]["max_steps"],
+                   "preparation.max_steps, relax.max_steps", "the step caps allow a run that")
+    dc.check_drag(deck["preparation"]["damping"], dt, "preparation.damping")
+    if deck["relax"]["damping"] != "auto":
+        dc.check_drag(deck["relax"]["damping"], dt, "relax.damping")
+    row = deck["boundary"]["row_thickness"]
+    edge = math.sqrt(s["n"] * math.pi * max(s["radii"]) ** 2 / 0.8) * deck["replicate"]["copies"][1]
+    if row != "auto" and 4.0 * row >= edge:
+        raise DeckError(f"boundary.row_thickness = {row:g} m: expected well below a quarter of the packing's "
+                        f"height (about {edge:.3g} m)")
+
+
+SCHEMA = Schema({
+    "sample": iso.SCHEMA["sample"],
+    "material": {k: f for k, f in iso.SCHEMA["material"].items() if k != "friction"},
+    "preparation": _PREP,
+    "equilibrium": iso.SCHEMA["equilibrium"],
+    "replicate": {
+        "copies": Field([1, 1], _copies_value, "copies [k_x, k_y] of the periodic packing (pardem.engine."
+                                               "replicate) before the boundaries are made; [1, 1]: none"),
+    },
+    "boundary": {
+        "row_thickness": Field("auto", auto_or(positive()),
+                               "grains within this distance [m] of the bottom and top lines form the rigid "
+                               "rows; auto = the largest diameter"),
+        "top": Field("free", choice("free", "rigid", "fixed"),
+                     "top row: free (each grain keeps its reference force as a dead load: a free surface "
+                     "under the confining stress; the load goes on its centre grain), rigid (one body moving "
+                     "vertically under the constant reference force) or fixed (clamped: the load splits "
+                     "between the rows)"),
+    },
+    "load": {
+        "fraction": Field(0.01, number(0.0, 1.0), "extra vertical force F on the top-centre grain, as a "
+                                                  "fraction of the mean contact force"),
+        "friction": Field(0.3, number(lo=0.0, lo_open=False), "contact friction of the response (0: variant)"),
+    },
+    "relax": {
+        "damping": Field("auto", auto_or(positive()),
+                         "global viscous damping C [1/s] of the relaxations; auto = pi c / H (twice the "
+                         "lowest angular frequency of the layer)"),
+        "force_tolerance": Field(1e-6, positive(), "mean unbalanced force / mean contact force below this"),
+        "kinetic_tolerance": Field(1e-14, positive(), "E_k / (N p V_mean) below this"),
+        "check_every": Field(200, number(lo=1, lo_open=False, integer=True), "steps between checks"),
+        "max_steps": Field(300000, number(lo=1, lo_open=False, integer=True),
+                           "largest number of steps of each relaxation"),
+    },
+    "dynamic": {
+        "times": Field([0.25, 0.5, 1.0, 2.0], _times_value,
+                       "times after the load, in units of the transit time H / c, of the dynamic "
+                       "(undamped) response snapshots; [] for none"),
+    },
+    "comparison": {
+        "poisson": Field(0.2, number(-1.0, 1.0), "2D Poisson ratio (K - mu) / (K + mu) of the elastic layer "
+                                                 "on a rigid base (Flamant's half-plane needs none)"),
+    },
+    "run": run_section("Rayleigh critical step",
+                       "displacement budget between list rebuilds; auto = 0.2 x the smallest radius"),
+    "checkpoint": CHECKPOINT_SECTION,
+    "output": {
+        "layer_height": Field(1.0, number(0.1, 100.0), "height of the horizontal layers [mean diameters]"),
+        "x_bin": Field(1.0, number(0.1, 100.0), "width of the x bins [mean diameters]"),
+        "vtk_every": Field(0, number(lo=0, lo_open=False, integer=True),
+                           "steps between ParaView snapshots of the whole state (DIR/paraview); 0 = none"),
+        "perturbation_vtk": Field(True, boolean, "ParaView snapshots of the perturbation (DIR/response_vtk: "
+                                                 "dsigma_yy, displacement per grain) at each record"),
+        "plot": Field(True, boolean, "draw response.png (needs matplotlib)"),
+    },
+}, checks=(sample_checks, run_checks))
+
+SERIES_COLUMNS = ("step", "time", "stage", "unbalanced", "kinetic", "top_force", "bottom_force")
+SERIES_UNITS = ("1", "s", "1", "1", "1", "N", "N")
+SERIES_INT = ("step", "stage")
+STAGES = ("reference", "dynamic", "static")
+SERIES_DESCRIPTION = ("pardem response series: one row per check of the relaxations: stage (0 reference, "
+                      "1 dynamic, 2 static), mean unbalanced force over the mean contact force, kinetic = "
+                      "E_k / (N p V_mean), the vertical force of the packing on the top and bottom rows "
+                      "[N] (positive up)")
+
+
+def iso_deck(deck):
+    """The isotropic protocol's deck of this deck's preparation (2D, one pressure, no moduli)."""
+    prep = {k: v for k, v in deck["preparation"].items() if k != "pressure"}
+    prep["pressures"] = [deck["preparation"]["pressure"]]
+    mat = dict(deck["material"], friction=0.0)
+    return {"domain": {"dimension": 2}, "sample": deck["sample"], "material": mat, "preparation": prep,
+            "equilibrium": deck["equilibrium"], "moduli": {"enabled": False, "strain": "auto",
+                                                           "max_relax_steps": 1}, "run": deck["run"]}
+
+
+# ---------------------------------------------------------------------------------------------
+# the rigid top row
+
+class RigidRow:
+    """A row of grains (``gids``) moving as one rigid body along y under a constant extra force.
+
+    Each step (stage CONSTRAINT, after the loads): x and the rotation of its grains are held
+    (force, torque and velocity zeroed), and their vertical forces are replaced by ``m_i (F_y +
+    applied) / M``: the total vertical force on the row (contacts and drag, an exact sum over the
+    ranks) plus ``applied`` [N], shared in proportion to the masses, so all its grains keep one
+    vertical velocity. ``applied``: None takes minus the row's force at the first call (the row
+    is then in equilibrium in that state). ``self.force`` [N]: the total vertical force of the
+    packing on the row at the last call (same on every rank).
+    """
+    stage = fx.CONSTRAINT
+
+    def __init__(self, gids, applied=None):
+        self.selection = fx.ElementSelection(gids, "top row gids")
+        self.applied = None if applied is None else float(applied)
+        self.force = 0.0
+        self._mass = None
+
+    def post_force(self, sim):
+        e = sim.elements
+        rows, _ = self.selection.rows(e, sim.comm)
+        cols = np.zeros((max(len(rows), 1), 2))
+        cols[:len(rows), 0] = e.f[rows, 1]
+        cols[:len(rows), 1] = e.mass[rows]
+        total = exact_sum(sim.comm, cols)
+        self.force = float(total[0])
+        if self.applied is None:
+            self.applied = -self.force
+        if len(rows):
+            acc = (self.force + self.applied) / float(total[1])
+            e.f[rows, 0] = 0.0
+            e.v[rows, 0] = 0.0
+            e.f[rows, 1] = e.mass[rows] * acc
+            e.t[rows] = 0.0
+            e.w[rows] = 0.0
+
+
+class DeadLoad:
+    """Constant loads on the grains ``gids`` equal to minus their force at the first call: each
+    grain is then in equilibrium in that state and keeps the same force and torque whatever
+    happens (a free surface under the confining stress, grain by grain). Stage LOAD. The loads are
+    gathered over the ranks at the first call (every rank holds them all, by gid), so they follow
+    grains that migrate. ``self.force`` [k, 3] [N], ``self.torque`` [k, 3] [N m] after it."""
+    stage = fx.LOAD
+
+    def __init__(self, gids):
+        self.selection = fx.ElementSelection(gids, "top row gids")
+        self.force = None
+        self.torque = None
+
+    def post_force(self, sim):
+        e = sim.elements
+        rows, idx = self.selection.rows(e, sim.comm)
+        if self.force is None:
+            parts = sim.comm.allgather((idx, -e.f[rows], -e.t[rows]))
+            k = len(self.selection.gids)
+            self.force, self.torque = np.zeros((k, 3)), np.zeros((k, 3))
+            for i, f, t in parts:
+                self.force[i] = f
+                self.torque[i] = t
+        e.f[rows] += self.force[idx]
+        e.t[rows] += self.torque[idx]
+
+
+# ---------------------------------------------------------------------------------------------
+# contacts and grains gathered
+
+def contact_table(sim):
+    """This rank's touching contacts counted once: ``gid_i, gid_j`` [n_c], unit ``normal`` [n_c, 3]
+    from i to j, contact ``arm_i, arm_j`` [n_c] [m], ``force`` on i [n_c, 3] [N] (elastic normal
+    plus tangential history: the static force; undamped contacts)."""
+    e, c = sim.elements, sim.contacts
+    d, n, dist, delta = pair_geometry(c.i, c.j, c.shift, e.x, e.radius)
+    keep = (delta > 0.0) & c.counted_once(e.n_owned)
+    ri, rj = e.radius[c.i[keep]], e.radius[c.j[keep]]
+    n, dist, delta = n[keep], dist[keep], delta[keep]
+    fn = c.law.elastic_normal_force(c.params, ri, rj, delta)
+    force = c.history[keep, :3] - fn[:, None] * n
+    a_i, a_j = rsp.contact_arms(dist, ri, rj)
+    return {"gid_i": e.gid[c.i[keep]].astype(np.int64), "gid_j": e.gid[c.j[keep]].astype(np.int64),
+            "normal": n, "arm_i": a_i, "arm_j": a_j, "force": force}
+
+
+def gather_state(sim):
+    """Rank 0: the contacts (``contact_table``, each pair once, ordered by gid pair) and the grains
+    by gid (``x`` [n, 3], ``radius`` [n]); None elsewhere. Collective."""
+    e = sim.elements
+    parts = sim.comm.gather({"c": contact_table(sim), "gid": e.gid[:e.n_owned], "x": e.x[:e.n_owned],
+                             "r": e.radius[:e.n_owned]})
+    if not sim.comm.is_root:
+        return None
+    c = {k: np.concatenate([p["c"][k] for p in parts]) for k in parts[0]["c"]}
+    o = np.lexsort((c["gid_j"], c["gid_i"]))
+    c = {k: v[o] for k, v in c.items()}
+    gid = np.concatenate([p["gid"] for p in parts])
+    x = np.zeros((len(gid), 3))
+    r = np.zeros(len(gid))
+    x[gid] = np.concatenate([p["x"] for p in parts])
+    r[gid] = np.concatenate([p["r"] for p in parts])
+    return {"contacts": c, "x": x, "radius": r}
+
+
+# ---------------------------------------------------------------------------------------------
+# building the loaded layer
+
+def prepared(comm, deck, progress=None):
+    """The frictionless packing at ``preparation.pressure`` in its periodic cell (step 1), and the
+    preparation's info (``isotropic.prepare``)."""
+    d = iso_deck(deck)
+    case, info = iso.prepare(comm, d, deck["preparation"]["pressure"], progress=progress)
+    case.sim.elements.v[:] = 0.0
+    case.sim.elements.w[:] = 0.0
+    return case, info
+
+
+class Layer:
+    """The loaded layer: the open case and its rows, load and constants (see ``make_layer``)."""
+
+    def __init__(self, case, bottom, top, free, top_fix, bottom_fix, geometry):
+        self.case = case
+        self.bottom, self.top, self.free = bottom, top, free
+        self.top_fix, self.bottom_fix = top_fix, bottom_fix
+        self.geometry = geometry
+        self.load = None
+        self.loaded_gid = None
+        # the grains that move under the contacts and loads alone: binned, and candidates for the load
+        self.binned = np.sort(np.concatenate([free, top])) if isinstance(top_fix, DeadLoad) else free
+        self.force = 0.0
+
+    @property
+    def sim(self):
+        return self.case.sim
+
+    def reactions(self):
+        """``(top, bottom)``: the vertical force [N] of the packing on the top and bottom rows
+        (positive up; collective)."""
+        sim = self.sim
+        if isinstance(self.top_fix, RigidRow):
+            top = self.top_fix.force
+        elif isinstance(self.top_fix, DeadLoad):
+            # the row's loads are constant: the packing's force on it is minus them (at equilibrium)
+            top = 0.0 if self.top_fix.force is None else -float(np.sum(self.top_fix.force[:, 1]))
+        else:
+            top = -float(exact_sum(sim.comm, np.array([self.top_fix.reaction[1]])))
+        bottom = -float(exact_sum(sim.comm, np.array([self.bottom_fix.reaction[1]])))
+        return top, bottom
+
+
+def make_layer(comm, case, deck, progress=None):
+    """Steps 2 and 3: replicate, open y, make the rows, friction on. Returns a ``Layer``."""
+    k = deck["replicate"]["copies"]
+    if k != [1, 1]:
+        case = replicate(comm, case, k)
+        if progress is not None:
+            progress.say(f"replicated {k[0]} x {k[1]}: {case.constants['n_elements']} grains")
+    cell = case.sim.cell
+    lo, L = cell.lo.copy(), cell.length.copy()
+    new = open_axes(comm, case, ("y",))
+    sim = new.sim
+    e = sim.elements
+    parts = comm.allgather((e.gid[:e.n_owned], e.x[:e.n_owned, 1], e.radius[:e.n_owned]))
+    gid = np.concatenate([p[0] for p in parts])
+    y = np.zeros(len(gid))
+    r = np.zeros(len(gid))
+    y[gid] = np.concatenate([p[1] for p in parts])
+    r[gid] = np.concatenate([p[2] for p in parts])
+    row = deck["boundary"]["row_thickness"]
+    row = 2.0 * float(r.max()) if row == "auto" else float(row)
+    bottom = np.nonzero(y < lo[1] + row)[0]
+    top = np.nonzero(y >= lo[1] + L[1] - row)[0]
+    free = np.nonzero((y >= lo[1] + row) & (y < lo[1] + L[1] - row))[0]
+    if len(bottom) == 0 or len(top) == 0 or len(free) == 0:
+        raise ValueError("boundary.row_thickness leaves a row or the free grains empty")
+    mat = deck["material"]
+    granular.set_contact_params(new, iso.contact_params(mat, deck["load"]["friction"], 1.0))
+    bottom_fix = fx.Clamp(bottom, dofs="xyz", rotations="xyz")
+    kind = deck["boundary"]["top"]
+    top_fix = (DeadLoad(top) if kind == "free" else RigidRow(top) if kind == "rigid"
+               else fx.Clamp(top, dofs="xyz", rotations="xyz"))
+    fx.add(sim, bottom_fix, top_fix)
+    if kind == "free":
+        # pistons: x and the rotation held, y free under the dead load (without this the surface
+        # grains, which have no stiffness against rolling off, flowed by a diameter)
+        fx.add(sim, fx.Clamp(top, dofs="x", rotations="xyz"))
+    geometry = {"lo": lo.tolist(), "length": L.tolist(), "row_thickness": row,
+                "n_grains": int(len(gid)), "n_bottom": int(len(bottom)), "n_top": int(len(top)),
+                "n_free": int(len(free)), "mean_diameter": float(2.0 * r.mean()),
+                "thickness": float(cell.thickness), "y": y, "radius": r}
+    return Layer(new, bottom, top, free, top_fix, bottom_fix, geometry)
+
+
+def wave_speed(layer):
+    """``(c [m/s], H [m])``: the affine wave speed ``sqrt(S / rho_b)`` (``S = kd2 / (2 V) + p``, the
+    frictionless affine stiffness of the contacts, ``rho_b`` the mass over ``L_x L_y t``) and the
+    height between the rows' inner lines. Collective."""
+    sim = layer.sim
+    kd2 = sim.contacts.global_affine_stiffness(sim.comm, sim.elements)
+    V = sim.cell.volume
+    p = max(sim.cell.pressure(sim.global_stress()), 0.0)
+    S = kd2 / (2.0 * V) + p
+    mass = float(exact_sum(sim.comm, sim.elements.mass[:sim.elements.n_owned]))
+    g = layer.geometry
+    H = g["length"][1] - 2.0 * g["row_thickness"]
+    return math.sqrt(S / (mass / V)), H
+
+
+class _Run:
+    """What ``isotropic.relax`` needs of a run: operations, a check callback, the stop step."""
+
+    def __init__(self, operations=(), on_check=None, stop=None):
+        self.operations = list(operations)
+        self.on_check = on_check
+        self.stop = stop
+
+    def before_run(self, sim):
+        pass
+
+
+def relax_layer(layer, deck, label, progress=None, operations=(), on_check=None):
+    """Relax with the damping of ``layer.damping`` until the ``[relax]`` criteria hold; returns
+    ``(balance, converged, steps)``."""
+    r = deck["relax"]
+    sim = layer.sim
+    sim.viscous_damping = layer.damping
+    tol = {"kinetic_tolerance": r["kinetic_tolerance"], "force_tolerance": r["force_tolerance"],
+           "pressure_tolerance": 1.0}
+    return iso.relax(sim, tol, r["check_every"], r["max_steps"], progress=progress, label=label,
+                     run=_Run(operations, on_check))
+
+
+def loaded_grain(layer):
+    """The gid of the highest grain not held by a row (with ``boundary.top = "free"`` the top row's
+    grains count) whose centre lies within one mean diameter of the top
+    centre line ``x = x_lo + L_x / 2`` (collective)."""
+    sim = layer.sim
+    e = sim.elements
+    parts = sim.comm.allgather((e.gid[:e.n_owned], e.x[:e.n_owned, :2]))
+    gid = np.concatenate([p[0] for p in parts])
+    x = np.concatenate([p[1] for p in parts])
+    g = layer.geometry
+    xc = g["lo"][0] + 0.5 * g["length"][0]
+    free = np.isin(gid, layer.binned)
+    dx = rsp.relative_x(x[:, 0], xc, g["length"][0])
+    cand = free & (np.abs(dx) < g["mean_diameter"])
+    if not cand.any():
+        raise ValueError("no free grain within one mean diameter of the top centre")
+    k = np.nonzero(cand)[0][np.argmax(x[cand, 1])]
+    return int(gid[k])
+
+
+def apply_load(layer, force):
+    """Put (or change) the extra force ``(0, -force, 0)`` [N] on the loaded grain."""
+    if layer.load is None:
+        layer.loaded_gid = loaded_grain(layer)
+        layer.load = fx.ExternalForce([layer.loaded_gid], (0.0, -float(force), 0.0))
+        fx.add(layer.sim, layer.load)
+    else:
+        layer.load.force[:] = (0.0, -float(force), 0.0)
+    layer.force = float(force)
+
+
+# ---------------------------------------------------------------------------------------------
+# measures
+
+def bins(layer, ref, loaded_xy, deck):
+    """``(x_edges [nx + 1], z_edges [nz + 1])`` [m] relative to the loaded grain: x bins of
+    ``output.x_bin`` mean diameters (an odd number, the middle one centred on the load, covering the
+    period), layers of ``output.layer_height`` from half a layer below the load to the top of the
+    bottom row."""
+    g = layer.geometry
+    d = g["mean_diameter"]
+    Lx = g["length"][0]
+    w = deck["output"]["x_bin"] * d
+    nx = max(1, int(Lx // w))
+    nx -= (nx + 1) % 2       # odd: one bin centred on the load
+    nx = max(nx, 1)
+    w = Lx / nx
+    x_edges = (np.arange(nx + 1) - nx / 2.0) * w
+    h = deck["output"]["layer_height"] * d
+    bottom_line = g["lo"][1] + g["row_thickness"]
+    depth = loaded_xy[1] - bottom_line
+    nz = int((depth - 0.5 * h) // h)
+    if nz < 1:
+        raise ValueError("output.layer_height: no layer fits between the load and the bottom row")
+    z_edges = 0.5 * h + np.arange(nz + 1) * h
+    return x_edges, z_edges
+
+
+def measure(layer, ref, cur, deck):
+    """Rank 0: the binned response of the state ``cur`` against ``ref`` (``gather_state``
+    outputs), dict of lists (see the module docstring); None elsewhere."""
+    if ref is None:
+        return None
+    g = layer.geometry
+    n = g["n_grains"]
+    dM = rsp.moment_change(n, ref["contacts"], cur["contacts"])
+    x0 = ref["x"][layer.loaded_gid]
+    x_edges, z_edges = bins(layer, ref, x0, deck)
+    Lx, t = g["length"][0], g["thickness"]
+    free = np.zeros(n, bool)
+    free[layer.binned] = True
+    free[layer.loaded_gid] = False
+    xr = rsp.relative_x(ref["x"][:, 0], x0[0], Lx)[free]
+    z = (x0[1] - ref["x"][:, 1])[free]
+    dyy = dM[free, 1, 1]
+    sigma, counts = rsp.bin_stress(xr, z, dyy, x_edges, z_edges, t)
+    xc = 0.5 * (x_edges[1:] + x_edges[:-1])
+    zc = 0.5 * (z_edges[1:] + z_edges[:-1])
+    dx = np.diff(x_edges)
+    F = layer.force
+    transmitted = -t * (sigma * dx[None, :]).sum(axis=1) / F        # per layer, / F
+    widths = [rsp.widths(xc, -row) for row in sigma]
+    fl = flamant.flamant_bin_average(x_edges, zc, F, t, period=Lx, images=200)
+    H = x0[1] - (g["lo"][1] + g["row_thickness"])
+    lay = flamant.layer_sigma_zz(xc, zc, F, t, H, Lx, deck["comparison"]["poisson"], bin_width=float(dx[0]))
+    fw = [rsp.widths(xc, -row) for row in fl]
+    lw = [rsp.widths(xc, -row) for row in lay]
+    disp = cur["x"] - ref["x"]
+
+    def col(ws, k):
+        return [None if w[k] is None else float(w[k]) for w in ws]
+
+    out = {"x": xc.tolist(), "depth": zc.tolist(), "x_edges": x_edges.tolist(), "z_edges": z_edges.tolist(),
+           "dsigma_yy": sigma.tolist(), "grains_per_bin": counts.tolist(),
+           "transmitted_over_F": transmitted.tolist(),
+           "width_second_moment": col(widths, 0), "width_half_max": col(widths, 1),
+           "flamant": {"dsigma_yy": fl.tolist(), "width_second_moment": col(fw, 0),
+                       "width_half_max": col(fw, 1)},
+           "layer_on_rigid_base": {"dsigma_yy": lay.tolist(), "width_second_moment": col(lw, 0),
+                                   "width_half_max": col(lw, 1), "height": float(H),
+                                   "poisson": deck["comparison"]["poisson"]},
+           "fits_half_max": rsp.fit_widths(zc, [np.nan if w[1] is None else w[1] for w in widths]),
+           "fits_second_moment": rsp.fit_widths(zc, [np.nan if w[0] is None else w[0] for w in widths]),
+           "max_displacement": float(np.max(np.abs(disp[:, :2]))),
+           "per_grain": {"dM_yy": dM[:, 1, 1], "displacement": disp}}
+    return out
+
+
+def per_grain_stress(dM_yy, radius, thickness, solid_fraction):
+    """A per-grain stress change [Pa] for pictures: ``dM_yy phi / (pi R^2 t)`` (the grain's share
+    of the area is its disk over the packing's solid fraction ``phi``)."""
+    return np.asarray(dM_yy) * float(solid_fraction) / (np.pi * np.asarray(radius) ** 2 * float(thickness))
+
+
+# ---------------------------------------------------------------------------------------------
+# the whole protocol
+
+def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=None):
+    """Steps 4 to 7 on a ``Layer``; returns the results dict on rank 0 (None elsewhere).
+    ``on_row(row)``: every relaxation check (``SERIES_COLUMNS``); ``on_record(label, state,
+    result)``: every recorded response (dynamic snapshots and the static one), rank 0 gets the
+    gathered state and the measure. Collective."""
+    sim = layer.sim
+    t0 = time.perf_counter()
+    c, H = wave_speed(layer)
+    transit = H / c
+    d = deck["relax"]["damping"]
+    layer.damping = math.pi * c / H if d == "auto" else float(d)
+    stage = {"k": 0}
+
+    def check(sim_, b):
+        top, bottom = layer.reactions()
+        row = {"step": sim_.step_count, "time": sim_.time, "stage": stage["k"], "unbalanced": b["unbalanced"],
+               "kinetic": b["kinetic"], "top_force": top, "bottom_force": bottom}
+        if on_row is not None:
+            on_row(row)
+
+    b, ok, steps = relax_layer(layer, deck, "reference", progress, operations, check)
+    ref_info = {"converged": ok, "steps": steps, "unbalanced": b["unbalanced"], "kinetic": b["kinetic"],
+                "pressure": b["pressure"], "mean_contact_force": b["mean_contact_force"],
+                "n_contacts": b["n_contacts"]}
+    top0, bottom0 = layer.reactions()
+    ref = gather_state(sim)
+    F = deck["load"]["fraction"] * b["mean_contact_force"]
+    apply_load(layer, F)
+    loaded = None
+    if sim.comm.is_root:
+        loaded = ref["x"][layer.loaded_gid].tolist()
+    if progress is not None:
+        progress.say(f"reference: {steps} steps, unbalanced {b['unbalanced']:.3g}; load F = {F:.4g} N on grain "
+                     f"{layer.loaded_gid}; c = {c:.4g} m/s, H = {H:.4g} m, damping {layer.damping:.4g} 1/s")
+    records = []
+    # dynamic (undamped) response
+    stage["k"] = 1
+    sim.viscous_damping = 0.0
+    start, t_load = sim.step_count, sim.time
+    for tau in deck["dynamic"]["times"]:
+        target = start + int(round(tau * transit / sim.dt))
+        if target > sim.step_count:
+            sim.run(target - sim.step_count, list(operations))
+        cur = gather_state(sim)
+        res = measure(layer, ref, cur, deck)
+        if res is not None:
+            res.update(time_after_load=sim.time - t_load, time_over_transit=tau, step=sim.step_count)
+        records.append(res)
+        if on_record is not None:
+            on_record(f"dynamic t = {tau:g} H/c", cur, res)
+    # static response
+    stage["k"] = 2
+    b2, ok2, steps2 = relax_layer(layer, deck, "static", progress, operations, check)
+    top1, bottom1 = layer.reactions()
+    cur = gather_state(sim)
+    static = measure(layer, ref, cur, deck)
+    if on_record is not None:
+        on_record("static", cur, static)
+    if not sim.comm.is_root:
+        return None
+    for r in records:
+        r.pop("per_grain", None)
+    per_grain = static.pop("per_grain")
+    return {"force": F, "loaded_gid": layer.loaded_gid, "loaded_position": loaded,
+            "wave_speed": c, "height": H, "transit_time": transit, "damping": layer.damping,
+            "reference": ref_info,
+            "static": dict(static, converged=ok2, steps=steps2, unbalanced=b2["unbalanced"],
+                           kinetic=b2["kinetic"]),
+            "dynamic": records,
+            "reactions": {"top_share": -(top1 - top0) / F, "bottom_share": -(bottom1 - bottom0) / F,
+                          "top_reference": top0, "bottom_reference": bottom0},
+            "geometry": {k: v for k, v in layer.geometry.items() if k not in ("y", "radius")},
+            "seconds": time.perf_counter() - t0, "_per_grain": per_grain}
+
+
+__all__ = ["SCHEMA", "RigidRow", "Layer", "prepared", "make_layer", "respond", "measure", "gather_state",
+           "contact_table", "apply_load", "relax_layer", "wave_speed", "iso_deck", "SERIES_COLUMNS"]
