@@ -465,7 +465,7 @@ def moduli(net, stress=None, friction=None, strain=None, full=True, **relax_opti
     return out
 
 
-def protocol_moduli(n, i, j, d, radius, volume, stress, e_star, g_star, strain, **relax_options):
+def protocol_moduli(n, i, j, d, radius, volume, stress, e_star, g_star, strain, modes=None, **relax_options):
     """The isotropic protocol's secant moduli [Pa] for its finite strain ``strain`` = e, to second
     order, from the static response (no dynamics): each increment's secant is the mean of the
     tangent moduli at its start and at its end (trapezoid rule, error O(e^2)), the end state being
@@ -474,9 +474,11 @@ def protocol_moduli(n, i, j, d, radius, volume, stress, e_star, g_star, strain, 
     the bulk increment, as in the protocol. Arguments as ``hertz_mindlin_branches`` (all listed
     pairs, touching or not), ``stress`` [3, 3] the reference stress [Pa]. Returns a dict with
     ``K_affine, K_relaxed, mu_affine, mu_relaxed`` and the tangents at both ends
-    (``K_relaxed_tangents`` ...).
+    (``K_relaxed_tangents`` ...). ``modes``: the increments ``(name, eps [3, 3], modulus
+    function)`` in order (default the 3D protocol's bulk then shear).
     """
     e = float(strain)
+    modes = (("K", BULK, bulk_from), ("mu", SHEAR, shear_from)) if modes is None else modes
     i, j = np.asarray(i, dtype=np.int64), np.asarray(j, dtype=np.int64)
 
     def tangent(dd, vol, s, eps):
@@ -488,7 +490,7 @@ def protocol_moduli(n, i, j, d, radius, volume, stress, e_star, g_star, strain, 
 
     out = {}
     dd, vol, s = np.asarray(d, dtype=float), float(volume), np.asarray(stress, dtype=float)
-    for name, eps, fn in (("K", BULK, bulk_from), ("mu", SHEAR, shear_from)):
+    for name, eps, fn in modes:
         r0, d1, v1, s1 = tangent(dd, vol, s, eps)
         r1, _, _, _ = tangent(d1, v1, s1, eps)
         for kind in ("affine", "relaxed"):

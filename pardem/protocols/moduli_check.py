@@ -148,26 +148,8 @@ def secant_moduli(g, e_star, g_star, strain, modes, **relax_options):
     the previous ended. Pure; ``g`` a gathered network. Returns ``K_affine, K_relaxed, ...`` and
     the tangents at both ends (``*_tangents``) [Pa].
     """
-    e = float(strain)
-    n, i, j, radius = g["n"], np.asarray(g["i"]), np.asarray(g["j"]), g["radius"]
-
-    def tangent(dd, vol, s, eps):
-        net = lr.hertz_mindlin_branches(n, i, j, dd, radius, vol, e_star, g_star)
-        r = lr.Relaxation(net, **relax_options).response(eps, s)
-        d2 = dd + e * (dd @ eps.T + r["u"][j] - r["u"][i])
-        return r, d2, vol * (1.0 + e * np.trace(eps)), s + e * r["relaxed"]
-
-    out = {}
-    dd, vol, s = np.asarray(g["d"], dtype=float), float(g["volume"]), np.asarray(g["stress"], dtype=float)
-    for name, eps, fn in modes:
-        r0, d1, v1, s1 = tangent(dd, vol, s, eps)
-        r1, _, _, _ = tangent(d1, v1, s1, eps)
-        for kind in ("affine", "relaxed"):
-            t = [fn(r0[kind], eps), fn(r1[kind], eps)]
-            out[f"{name}_{kind}"] = 0.5 * (t[0] + t[1])
-            out[f"{name}_{kind}_tangents"] = t
-        dd, vol, s = d1, v1, s1
-    return out
+    return lr.protocol_moduli(g["n"], g["i"], g["j"], g["d"], g["radius"], g["volume"], g["stress"], e_star,
+                              g_star, strain, modes=modes, **relax_options)
 
 
 def evaluate_2d(g, net, material, strain, e_star, g_star, max_ft):
