@@ -38,6 +38,8 @@ def test_default_case_gives_analytic_modulus(tmp_path):
         assert abs(s["poisson_ratios"][k]) < 1e-6    # face bonds along the axis only
     for key in ("n_ranks", "steps", "dt", "plate_force", "wall_seconds", "element_steps_per_second"):
         assert key in s
+    # the compilation is timed apart from the steps, and both lie inside the job's wall time
+    assert 0.0 < s["compile_seconds"] and s["compile_seconds"] + s["run_seconds"] <= s["wall_seconds"]
     series = read_series(out / "series.csv")
     assert list(series) == list(SERIES_COLUMNS)
     t = np.array(series["time"])

@@ -315,3 +315,70 @@ def test_driver_short_deck_on_two_ranks(tmp_path):
                         "replicate.copies=[0, 1]", "--out", str(tmp_path / "bad")], capture_output=True, text=True,
                        timeout=120, cwd=ROOT)
     assert q.returncode == 2 and "replicate.copies" in q.stderr and not (tmp_path / "bad").exists()
+
+
+# -- restart ---------------------------------------------------------------------------------------
+
+def _result_without_timings(summary):
+    r = dict(summary["result"])
+    r.pop("seconds")
+    return r
+
+
+@pytest.mark.skipif(MPIEXEC is None, reason="needs mpiexec")
+def test_driver_restart_in_every_stage_is_bit_for_bit(tmp_path):
+    """A run killed in any stage resumes from its last checkpoint and ends with the uninterrupted
+    run's response, bit for bit (same 2 ranks): the uninterrupted run A writes a checkpoint every
+    130 steps (not a multiple of the checks: inside a check interval, where a kill leaves them);
+    B restarts from A's checkpoint inside the preparation and is stopped by --steps inside the
+    reference relaxation, restarted and stopped inside the dynamic stage, then inside the static
+    relaxation, then restarted to the end. Oracle: A's outputs (an independent, uninterrupted
+    computation); every float is compared exactly (the JSON keeps 17 digits). The deck is tiny
+    and its relaxations capped (not converged: the restart, not the physics, is tested)."""
+    import csv
+    every = 130
+    tiny = ["--config", SHORT, "--set", "sample.n=128", "--set", "preparation.max_rate=2e5",
+            "--set", "preparation.servo_rate=2e5", "--set", "preparation.max_steps=1200",
+            "--set", "relax.max_steps=300", "--set", "relax.check_every=100", "--set", "dynamic.times=[0.5]",
+            "--set", "output.plot=false", "--set", f"checkpoint.every_steps={every}",
+            "--set", "checkpoint.keep=100000", "--set", "checkpoint.every_seconds=0"]
+    run = [MPIEXEC, "-n", "2", sys.executable, "-m", "pardem.drivers.response", "--quiet"]
+
+    def go(args, out):
+        p = subprocess.run(run + args + ["--out", str(out)], capture_output=True, text=True, timeout=900, cwd=ROOT)
+        assert p.returncode == 0, p.stderr[-3000:]
+        return json.loads((out / "response.json").read_text())
+
+    a = go(tiny, tmp_path / "a")
+    assert a["finished"] and a["stage"] == "done" and a["result"]["force"] > 0.0
+    steps = a["stage_steps"]
+    # the stages' steps from the run's start: prepare, replicate_open (no step), reference, dynamic, static
+    assert steps["replicate_open"] == 0 and sum(steps.values()) == a["steps"]
+    assert min(steps["prepare"], steps["reference"], steps["dynamic"], steps["static"]) >= 3
+    p_end = steps["prepare"]
+    r_end = p_end + steps["reference"]
+    d_end = r_end + steps["dynamic"]
+    # a periodic checkpoint of A inside the preparation, off its checks (every 200 steps)
+    k = (p_end // 2) // every * every
+    assert k > 0 and k % 200 != 0
+    ck = tmp_path / "a" / "checkpoints" / f"checkpoint-{k:010d}.h5"
+    assert ck.exists()
+    previous, out = ck, None
+    for i, stop in enumerate([(p_end + r_end) // 2, (r_end + d_end) // 2, d_end + steps["static"] // 2, None]):
+        out = tmp_path / f"b{i}"
+        s = go(["--restart", str(previous)] + (["--steps", str(stop)] if stop else []), out)
+        assert s["restarted_from"] == str(previous)
+        if stop is not None:
+            assert not s["finished"] and s["respond_stage"] == ("reference", "dynamic", "static")[i], s["stopped"]
+            previous = s["checkpoints"][-1]
+    assert s["finished"] and s["steps"] == a["steps"]
+    assert _result_without_timings(s) == _result_without_timings(a)
+    with open(tmp_path / "a" / "response.csv", newline="") as fh:
+        full = list(csv.DictReader(fh))
+    with open(out / "response.csv", newline="") as fh:
+        again = list(csv.DictReader(fh))
+    assert again == full
+    # the perturbation snapshots (the dynamic one, written by b2, and the static one) in one collection
+    pvd = (out / "response_vtk" / "response.pvd").read_text()
+    assert pvd.count("<DataSet") == 2 and "b2/response_vtk/response-000.vtu" in pvd
+    assert s["stage_steps"] == steps        # the stage clock is carried across the restarts

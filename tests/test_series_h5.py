@@ -1,4 +1,5 @@
-"""The HDF5 series (against the CSV series) and the force-strain plot of a compress run."""
+"""The HDF5 series (against the CSV series; its row buffer: what a crash, a restart and an unclosed
+writer keep) and the force-strain plot of a compress run."""
 import json
 import struct
 import subprocess
@@ -28,10 +29,12 @@ def synthetic_samples(n, seed=0, step0=0):
     return out
 
 
-def test_round_trip_matches_csv(tmp_path):
-    """Every value of every column equals the CSV's (bit for bit); dtypes, units and attributes."""
-    samples = synthetic_samples(37)
-    csv, h5 = SeriesCSV(tmp_path / "series.csv"), SeriesH5(tmp_path / "series.h5")
+@pytest.mark.parametrize("n_rows, flush_rows", [(37, 100), (37, 1), (250, 100), (250, 7)])
+def test_round_trip_matches_csv(tmp_path, n_rows, flush_rows):
+    """Every value of every column equals the CSV's (bit for bit), whatever the buffer size (rows
+    left in the buffer at close, several writes of full buffers); dtypes, units and attributes."""
+    samples = synthetic_samples(n_rows)
+    csv, h5 = SeriesCSV(tmp_path / "series.csv"), SeriesH5(tmp_path / "series.h5", flush_rows=flush_rows)
     for s in samples:
         csv.append(s)
         h5.append(s)
@@ -64,14 +67,16 @@ def test_empty_file_and_context_manager(tmp_path):
     assert list(h) == list(SERIES_COLUMNS) and all(len(v) == 0 for v in h.values())
 
 
-def test_resume_from_samples(tmp_path):
-    """``samples=`` writes the kept rows first; appends continue after them; an old file is replaced."""
+@pytest.mark.parametrize("flush_rows", [1, 4, 100])
+def test_resume_from_samples(tmp_path, flush_rows):
+    """``samples=`` writes the kept rows first; appends continue after them; an old file is replaced
+    (also when the old file's writer was buffering and the new one flushes part-way)."""
     first, later = synthetic_samples(10, seed=1), synthetic_samples(5, seed=2, step0=70)
     path = tmp_path / "series.h5"
-    with SeriesH5(path) as h5:           # the interrupted run wrote more rows than the checkpoint kept
+    with SeriesH5(path, flush_rows=flush_rows) as h5:   # the interrupted run wrote more rows than kept
         for s in first + synthetic_samples(3, seed=3, step0=1000):
             h5.append(s)
-    with SeriesH5(path, samples=first) as h5:
+    with SeriesH5(path, samples=first, flush_rows=flush_rows) as h5:
         assert h5.n_rows == len(first)
         assert len(read_series_h5(path)["step"]) == len(first)   # flushed before any append
         for s in later:
@@ -85,26 +90,111 @@ def test_resume_from_samples(tmp_path):
     assert list(resumed["step"]) == [s["step"] for s in first + later]
 
 
-def test_rows_survive_a_crash(tmp_path):
-    """A writer killed without close (no atexit, no destructor) leaves its appended rows readable."""
-    path = tmp_path / "series.h5"
-    script = textwrap.dedent(f"""
+def _writer_script(path, options, n, end):
+    return textwrap.dedent(f"""
         import os
         import numpy as np
         from pardem.io.series_h5 import SeriesH5
-        w = SeriesH5({str(path)!r})
-        for k in range(4):
+        w = SeriesH5({str(path)!r}, {options})
+        for k in range({n}):
             H = np.full((3, 3), 1e-4 * k)
             w.append({{"time": 0.5 * k, "step": k, "plate_displacement": 1e-6 * k, "force_fixed": 2.0 * k,
                        "force_moving": 3.0 * k, "H": H, "eps": H, "bonds_broken": k,
                        "bonds_broken_step": 1, "bonds_yielded": 0}})
-        os._exit(9)
+        {end}
     """)
-    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("options, n, kept", [("flush_rows=3", 7, 6), ("flush_rows=3", 6, 6),
+                                              ("flush_rows=100", 7, 0), ("flush_seconds=0.0", 4, 4)])
+def test_a_crash_loses_only_the_unflushed_rows(tmp_path, options, n, kept):
+    """A writer killed without close (``os._exit``: no atexit, no destructor) leaves the rows of its
+    last flush readable, a prefix of those appended: the full buffers of ``flush_rows`` rows, or
+    every row with ``flush_seconds = 0`` (then nothing is ever held back)."""
+    path = tmp_path / "series.h5"
+    r = subprocess.run([sys.executable, "-c", _writer_script(path, options, n, "os._exit(9)")],
+                       capture_output=True, text=True, timeout=120)
     assert r.returncode == 9, r.stderr
     h = read_series_h5(path)
-    assert list(h["step"]) == [0, 1, 2, 3]
-    np.testing.assert_array_equal(h["force_moving"], [0.0, 3.0, 6.0, 9.0])
+    assert list(h["step"]) == list(range(kept))
+    np.testing.assert_array_equal(h["force_moving"], 3.0 * np.arange(kept))
+
+
+def test_rows_reach_the_file_without_close(tmp_path):
+    """Never closed: the buffered rows are written when the writer is garbage-collected and when the
+    interpreter exits normally."""
+    path = tmp_path / "exit.h5"
+    r = subprocess.run([sys.executable, "-c", _writer_script(path, "flush_rows=100", 5, "")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert list(read_series_h5(path)["step"]) == [0, 1, 2, 3, 4]
+    import gc
+    w = SeriesH5(tmp_path / "gc.h5")
+    samples = synthetic_samples(3)
+    for s in samples:
+        w.append(s)
+    del w
+    gc.collect()
+    assert list(read_series_h5(tmp_path / "gc.h5")["step"]) == [s["step"] for s in samples]
+
+
+class _Clock:
+    def __init__(self):
+        self.now = 1000.0
+
+    def monotonic(self):
+        return self.now
+
+
+def test_flush_after_flush_seconds(tmp_path, monkeypatch):
+    """With a large buffer, a row arriving ``flush_seconds`` after the last flush writes the buffer
+    (a slow run loses at most that long of rows); ``flush()`` writes it at once. The written rows
+    are those the datasets hold (their length), buffered ones are counted in ``n_rows``."""
+    from pardem.io import series_h5
+    clock = _Clock()
+    monkeypatch.setattr(series_h5, "time", clock)
+    samples = synthetic_samples(6)
+    w = SeriesH5(tmp_path / "s.h5", flush_rows=1000, flush_seconds=5.0)
+    written = lambda: w._f["step"].shape[0]
+    for k, t in enumerate((1.0, 2.0, 4.9)):
+        clock.now = 1000.0 + t
+        w.append(samples[k])
+    assert written() == 0 and w.n_rows == 3
+    clock.now = 1005.0          # 5 s after the file was opened (its last flush)
+    w.append(samples[3])
+    assert written() == 4
+    clock.now = 1009.0          # 4 s after that flush: buffered
+    w.append(samples[4])
+    assert written() == 4 and w.n_rows == 5
+    w.flush()
+    assert written() == 5
+    w.append(samples[5])
+    w.close()
+    assert list(read_series_h5(tmp_path / "s.h5")["step"]) == [s["step"] for s in samples]
+
+
+def test_buffered_rows_keep_the_values_appended(tmp_path):
+    """A row held in the buffer holds copies: changing the caller's arrays afterwards (a sampler
+    reusing its arrays) does not change what is written."""
+    from pardem.io.series import dict_row
+    cols = ("step", "pressure")
+    value = np.array(1.5)
+    w = SeriesH5(tmp_path / "s.h5", columns=cols, units=("1", "Pa"), row=dict_row(cols),
+                 int_columns={"step"})
+    w.append({"step": 0, "pressure": value})
+    value[()] = -7.0
+    w.append({"step": 1, "pressure": value})
+    w.close()
+    np.testing.assert_array_equal(read_series_h5(tmp_path / "s.h5")["pressure"], [1.5, -7.0])
+
+
+@pytest.mark.parametrize("option, message", [({"flush_rows": 0}, "flush_rows must be an integer >= 1"),
+                                             ({"flush_rows": 2.5}, "flush_rows must be an integer >= 1"),
+                                             ({"flush_seconds": -1.0}, "flush_seconds must be a finite"),
+                                             ({"flush_seconds": float("nan")}, "flush_seconds must be a finite")])
+def test_bad_buffer_options(tmp_path, option, message):
+    with pytest.raises(ValueError, match=message):
+        SeriesH5(tmp_path / "s.h5", **option)
 
 
 def png_size(path):

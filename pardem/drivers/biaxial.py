@@ -13,13 +13,23 @@ deck's defaults are the 10,000-grain case of ``drivers/biaxial.toml``.
 Writes ``DIR/biaxial.csv`` and ``DIR/biaxial.h5`` (the series with units: step, time [s],
 pressure_index, pc [Pa], eps_axial, eps_vol (compression / contraction positive), sigma_axial,
 sigma_lateral, q, s [Pa], sin_phi, sigma_axial_platens [Pa], coordination, sliding_fraction,
-membrane_grains, n_grains, kinetic_energy [J]), ``DIR/biaxial.json`` (per pressure: the
+membrane_grains, n_grains, cements_intact, cements_fading, cements_broken, broken_fraction,
+kinetic_energy [J]), ``DIR/biaxial.json`` (per pressure: the
 preparation, the sample, peak and residual friction angles, the dilatancy angle, the lateral
 stress error, and per localisation window the shear band (angle, width in mean diameters,
 centre) with the Mohr-Coulomb, Roscoe and Arthur predictions; the deck, ``finished``,
 ``restarted_from``, ``checkpoints``, timings), ``DIR/biaxial.png`` (q / pc and eps_v against
-eps_a), ``DIR/localisation-P-W.png`` (maps of the incremental shear strain and grain rotations of
-window W of pressure P) and ``DIR/localisation-P-W.vtu`` (the same fields for ParaView),
+eps_a; cemented: the broken cements too), ``DIR/localisation-P-W.png`` (maps of the incremental shear strain and grain rotations of
+window W of pressure P) and ``DIR/localisation-P-W.vtu`` (the same fields for ParaView, with
+the cements each grain lost in the window), and for cemented samples (``[cement] enabled = true``,
+``drivers/biaxial_cemented.toml``) ``DIR/cements-P.png`` (the broken cements as segments between
+the pair centres, coloured by the axial strain at rupture, over the grains at the end) and
+``DIR/cements-P.vtu`` (per grain the broken and intact cements, the broken cements as lines with
+their strain at rupture); the JSON's ``cements`` per pressure: cements at the start, broken at
+the end, the broken fraction at the peak and at the end, the share of broken cements in the last
+window's band against the band's share of all cements. The cement law keeps no rupture time, so
+the strain at rupture is that of the first sample at which a cement was no longer intact
+(``biaxial.CementRecord``, resolution ``loading.strain / output.samples``);
 checkpoints in ``DIR/checkpoints`` and ParaView snapshots in ``DIR/paraview``
 (``output.vtk_every``). ``--restart DIR/checkpoints/checkpoint-<step>.h5`` continues a run (bit
 for bit on the same number of ranks once the sample is opened; a checkpoint of the preparation
@@ -37,6 +47,7 @@ import pardem
 from pardem.config import DeckError
 from pardem.drivers import cli
 from pardem.drivers.runner import GranularDriver, run_protocol
+from pardem.engine import granular
 from pardem.io import biaxial_plot
 from pardem.parallel.communicator import Communicator
 from pardem.physics import shear_band
@@ -45,6 +56,7 @@ from pardem.protocols import granular_output as gout
 
 RESTART_MAY_CHANGE = ("run.progress_seconds", "run.watchdog_seconds", "run.slab_axis")
 SNAP_KEYS = ("gid", "x", "theta", "pair_i", "pair_j", "cements")
+CEMENT_KEYS = ("initial", "keys", "strain", "step")
 
 
 def parser(comm=None):
@@ -54,7 +66,7 @@ def parser(comm=None):
                              out_default="runs/biaxial-<timestamp>",
                              deck_title="deck keys and defaults (drivers/biaxial.toml)",
                              epilog="outputs: DIR/biaxial.csv, biaxial.h5, biaxial.json, biaxial.png, "
-                                    "localisation-P-W.png/.vtu, checkpoints/, paraview/")
+                                    "localisation-P-W.png/.vtu, cements-P.png/.vtu (cemented), checkpoints/, paraview/")
 
 
 def main(argv=None):
@@ -80,6 +92,7 @@ class Biaxial(GranularDriver):
     def __init__(self):
         self.mem = self.platens = None
         self.pending = {}        # localisation window -> snapshot of its start
+        self.record = None       # cemented: biaxial.CementRecord of the current loading
 
     def check(self, run, deck):
         if deck["run"]["slab_axis"] == "z":
@@ -101,6 +114,8 @@ class Biaxial(GranularDriver):
             snap = {k: np.asarray(series[f"window_{w}_{k}"]) for k in SNAP_KEYS}
             snap["x"] = snap["x"].reshape(-1, 2)
             self.pending[w] = snap
+        if cur["stage"] in ("settle", "load") and "cement_initial" in series:
+            self.record = biaxial.CementRecord.from_state({k: np.asarray(series[f"cement_{k}"]) for k in CEMENT_KEYS})
         return case
 
     def protocol_state(self, run):
@@ -113,6 +128,9 @@ class Biaxial(GranularDriver):
         for w, snap in self.pending.items():
             for k in SNAP_KEYS:
                 series[f"window_{w}_{k}"] = np.asarray(snap[k]).ravel()
+        if self.record is not None:
+            for k, v in self.record.state().items():
+                series[f"cement_{k}"] = v
         return groups, series, attrs
 
     def start(self, run):
@@ -136,7 +154,7 @@ class Biaxial(GranularDriver):
                 if k > 0 and not run.case.sim.cell.periodic[1]:     # a new gas after the last loading
                     step, t = run.sim.step_count, run.sim.time
                     run.case = biaxial.isotropic.build_gas(run.comm, biaxial.iso_deck(deck))
-                    biaxial.continue_clock(run.sim, step, t)
+                    granular.continue_clock(run.sim, step, t)
                 iso = biaxial.iso_deck(deck)
                 t0 = time.perf_counter()
                 run.case, info = biaxial.isotropic.prepare(run.comm, iso, float(pc), case=run.case, progress=progress)
@@ -152,7 +170,8 @@ class Biaxial(GranularDriver):
             if cur["stage"] == "open":
                 run.case, geo = biaxial.open_sample(run.comm, run.case, deck)
                 cur["geo"] = geo
-                biaxial.start_loading(run.case, deck, geo, None)
+                if biaxial.start_loading(run.case, deck, geo, None):
+                    self.record = biaxial.CementRecord(biaxial.intact_cements(run.sim))
                 self.mem, *self.platens = biaxial.install(run.case, deck, pc, geo)
                 cur["settle_start"] = run.sim.step_count
                 cur["stage"] = "settle"
@@ -178,7 +197,7 @@ class Biaxial(GranularDriver):
                                                  f"sigma_l/pc = {row['sigma_lateral'] / row['pc']:.4f}, "
                                                  f"sliding {row['sliding_fraction']:.3f}")
                 biaxial.load(run.case, deck, cur, self.mem, self.platens, on_row, run.operations, stop,
-                             on_event=lambda step: self.event(run, step))
+                             on_event=lambda step: self.event(run, step), record=self.record)
                 rows = [r for r in run.series.rows if r["pressure_index"] == k]
                 result = {"pc": pc, "preparation": cur["prep"], "sample": {kk: cur["geo"][kk] for kk in
                           ("n_grains", "n_before", "y_bottom", "y_top", "mean_radius")},
@@ -187,11 +206,13 @@ class Biaxial(GranularDriver):
                 result["windows"] = [dict(w, predictions=shear_band.predictions(result["phi_peak_deg"],
                                                                                 result["psi_max_deg"]))
                                      for w in cur["windows"]]
+                if self.record is not None:
+                    result["cements"] = self.cement_outputs(run, rows, result)
                 run.state["results"].append(result)
                 progress.say(f"pc = {pc:.4g} Pa: phi_peak = {result['phi_peak_deg']:.2f} deg at eps_a = "
                              f"{result['strain_at_peak']:.4f}, phi_residual = {result['phi_residual_deg']:.2f} deg, "
                              f"psi_max = {result['psi_max_deg']:.2f} deg")
-                self.mem = self.platens = None
+                self.mem = self.platens = self.record = None
                 run.state["current"] = fresh_state(k + 1, pcs[k + 1] if k + 1 < len(pcs) else None)
 
     def event(self, run, step):
@@ -227,6 +248,41 @@ class Biaxial(GranularDriver):
             if step == s0:
                 snap = snap or biaxial.snapshot(run.sim)
                 self.pending[w] = snap
+
+    def cement_outputs(self, run, rows, result):
+        """The damage of a cemented loading (collective): ``biaxial.cement_damage``, the share of the
+        broken cements in the last window's shear band against the band's share of all the cements
+        (midpoints at the end of the loading; above 1: damage localised in the band), and on rank 0
+        ``DIR/cements-P.png`` (``biaxial_plot.cement_map``) and ``DIR/cements-P.vtu``."""
+        cur, deck, rec = run.state["current"], run.deck, self.record
+        out = biaxial.cement_damage(rows, rec)
+        snap = biaxial.snapshot(run.sim)
+        gid, x = snap["gid"], snap["x"]
+        radius = self._radii(run, gid)
+        broken = np.searchsorted(gid, biaxial.key_pairs(rec.keys))            # rows [m, 2]
+        every = np.searchsorted(gid, biaxial.key_pairs(rec.initial))
+        band = next((w["band"] for w in reversed(result["windows"]) if w["band"] is not None), None)
+        if band is not None and len(rec.keys):
+            d_mean = 2.0 * cur["geo"]["mean_radius"]
+            in_broken = biaxial.band_share(0.5 * (x[broken[:, 0]] + x[broken[:, 1]]), band, d_mean)
+            in_all = biaxial.band_share(0.5 * (x[every[:, 0]] + x[every[:, 1]]), band, d_mean)
+            out.update(broken_in_band=in_broken, cements_in_band=in_all,
+                       band_concentration=in_broken / in_all if in_all > 0 else None)
+        k = cur["index"]
+        out["files"] = [f"cements-{k}.png", f"cements-{k}.vtu"]
+        if run.comm.is_root:
+            base = os.path.join(run.out, f"cements-{k}")
+            biaxial_plot.write_cement_fields(base + ".vtu", x, gid, radius, rec.per_grain(gid), snap["cements"],
+                                             broken, rec.strain)
+            if deck["output"]["plot"]:
+                biaxial_plot.cement_map(base + ".png", x, radius, np.stack([x[broken[:, 0]], x[broken[:, 1]]], axis=1),
+                                        rec.strain, f"pc = {cur['pc']:.3g} Pa: {len(rec.keys)} of {len(rec.initial)} "
+                                        f"cements broken by eps_a = {rows[-1]['eps_axial']:.3f} (grains at the end)",
+                                        band)
+        run.progress.say(f"pc = {cur['pc']:.4g} Pa: {out['broken_at_end']} of {out['cements_at_start']} cements "
+                         f"broken (fraction {out['broken_fraction_at_peak']:.3f} at the peak, "
+                         f"{out['broken_fraction_at_end']:.3f} at the end)")
+        return out
 
     @staticmethod
     def _radii(run, gids):

@@ -1,6 +1,7 @@
 """Point-load response function of a 2D granular packing (python -m pardem.drivers.response).
 
-    python -m pardem.drivers.response [--config deck.toml] [--set section.key=value ...] [--out DIR] [--quiet]
+    python -m pardem.drivers.response [--config deck.toml] [--set section.key=value ...] [--out DIR]
+        [--steps N] [--restart CHECKPOINT.h5] [--quiet]
     mpiexec -n 2 python -m pardem.drivers.response --config drivers/response_short.toml --out runs/resp
 
 A 2D packing is prepared frictionless at the pressure p in a periodic cell (isotropic protocol),
@@ -17,14 +18,22 @@ Flamant's half-plane and the layer on a rigid base, the width fits), the reactio
 geometry, deck, timings), ``DIR/response.csv`` and ``DIR/response.h5`` (one row per relaxation
 check: ``pardem.protocols.response.SERIES_COLUMNS``), ``DIR/response.png`` (needs matplotlib),
 ``DIR/response_vtk/response.pvd`` (the perturbation per grain, ``output.perturbation_vtk``) and
-ParaView snapshots of the whole state in ``DIR/paraview`` (``output.vtk_every``). A checkpoint of
-the final state is written (``[checkpoint]``), but the driver does not restart from one: run it
-again.
+ParaView snapshots of the whole state in ``DIR/paraview`` (``output.vtk_every``), checkpoints in
+``DIR/checkpoints`` (``[checkpoint]``). The summary also gives the wall seconds and steps of each
+stage (``stage_seconds``, ``stage_steps``: prepare, replicate_open, reference, dynamic, static;
+summed over restarts), ``seconds_per_step``, ``element_steps_per_second`` and every rank's peak
+resident memory ``peak_rss_mib`` (of this process). ``--restart DIR/checkpoints/checkpoint-<step>.h5``
+continues a run from any stage (the preparation, the reference relaxation, the dynamic
+snapshots, the static relaxation: bit for bit on the same number of ranks; by default into a new
+folder ``DIR-restart-<stamp>``); ``--steps N`` stops it at step N (counted from the run's start over
+all stages), leaving a checkpoint to continue from; a stop signal (SIGTERM, SIGINT) ends it at a
+step boundary with a checkpoint (``checkpoint.at_stop``).
 
-Exit codes: 0 done, 1 unexpected error (all ranks stop), 2 bad input (one line naming the field),
-3 the run became unstable.
+Exit codes: 0 done (or stopped by --steps), 1 unexpected error (all ranks stop), 2 bad input (one
+line naming the field), 3 the run became unstable, 128 + N stopped by signal N (checkpoint written).
 """
 import os
+import resource
 import time
 
 import numpy as np
@@ -35,13 +44,21 @@ from pardem.drivers import cli
 from pardem.drivers.runner import GranularDriver, run_protocol
 from pardem.io import response_plot
 from pardem.parallel.communicator import Communicator
+from pardem.protocols import granular_output as gout
 from pardem.protocols import isotropic as iso
 from pardem.protocols import response
+
+# deck keys a restart may change besides [output] and [checkpoint] (the rest is the physics)
+RESTART_MAY_CHANGE = ("run.progress_seconds", "run.watchdog_seconds", "run.slab_axis")
 
 
 def parser(comm=None):
     return cli.driver_parser("python -m pardem.drivers.response", __doc__.split("\n\n")[0], response.SCHEMA,
-                             comm=comm, out_default="runs/response-<timestamp>",
+                             comm=comm, steps_help=(gout.STEPS_HELP + "; in a relaxation the run stops at "
+                                                    "the first check (every relax.check_every steps) at or "
+                                                    "after step N"),
+                             restart_help=gout.restart_help(RESTART_MAY_CHANGE),
+                             out_default="runs/response-<timestamp>",
                              deck_title="deck keys and defaults (drivers/response.toml)",
                              epilog="outputs: DIR/response.json, response.csv, response.h5, response.png, "
                                     "response_vtk/response.pvd, checkpoints/, paraview/")
@@ -57,70 +74,137 @@ class Response(GranularDriver):
     schema = response.SCHEMA
     summary_name = "response.json"
     error_types = (ValueError,)
+    restart_may_change = RESTART_MAY_CHANGE
+    restart_what = "run.slab_axis, run.progress_seconds, run.watchdog_seconds"
     columns, units, description, int_columns = (response.SERIES_COLUMNS, response.SERIES_UNITS,
                                                 response.SERIES_DESCRIPTION, response.SERIES_INT)
     slab_axes = "xy"
 
-    def inspect(self, run):
-        raise DeckError(f"--restart {run.args.restart}: the response driver does not restart from a "
-                        "checkpoint; run it again")
+    def __init__(self):
+        self.sweep = None        # the preparation's isotropic.SweepRun (its state goes into checkpoints)
+        self.layer = None        # the loaded layer, once the packing is opened
+        self.vtk = None
+        self.clock = None
 
     def check(self, run, deck):
-        if run.args.steps is not None:
-            raise DeckError("--steps: the response driver runs its stages to their criteria "
-                            "(relax.max_steps caps each relaxation)")
+        if deck["run"]["slab_axis"] == "z":
+            raise DeckError("run.slab_axis = 'z': expected 'x' or 'y' (the grains lie in the plane z = 0)")
 
     def build(self, run):
-        run.state = {"driver": "response", "stage": "prepare", "result": None}
+        run.state = {"driver": "response", "stage": "prepare", "sweep": None, "preparation": None, "layer": None,
+                     "respond": None, "clock": None, "vtk": [], "result": None}
         return iso.build_gas(run.comm, response.iso_deck(run.deck))
+
+    def restore(self, run):
+        case = super().restore(run)
+        if run.state["stage"] != "prepare":
+            self.layer = response.restore_layer(case, run.deck, run.state["layer"], run.meta["series"])
+            response.restore_response(self.layer, run.meta["series"])
+        return case
+
+    def protocol_state(self, run):
+        """The state for a checkpoint (collective: the layer's clamp reactions are gathered)."""
+        st = dict(run.state)
+        st["result"] = None     # the summary holds it; the checkpoint need not
+        if self.sweep is not None:
+            st["sweep"] = self.sweep.snapshot()
+        st["clock"] = self.clock.state(run.sim.step_count) if self.clock is not None else st["clock"]
+        if self.vtk is not None:
+            st["vtk"] = list(self.vtk.entries)
+        self._arrays = {}
+        if self.layer is not None:
+            st["layer"], self._arrays = response.layer_state(self.layer)
+        return st
+
+    def payload(self, run):
+        groups, series, attrs = gout.payload(run.case, run.deck, self.protocol_state(run), run.series.rows,
+                                             self.columns)
+        series.update(self._arrays)
+        if self.layer is not None:
+            series.update(response.response_arrays(self.layer))
+        return groups, series, attrs
 
     def start(self, run):
         self.open_series(run)
+        self.clock = response.StageClock(run.state.get("clock"))
         k = run.deck["replicate"]["copies"]
         run.progress.say(f"pardem {pardem.__version__} response: {run.deck['sample']['n']} grains (2D) x "
                          f"{k[0]} x {k[1]} copies on {run.comm.size} rank(s), p = "
-                         f"{run.deck['preparation']['pressure']:g} Pa; output {run.out}")
+                         f"{run.deck['preparation']['pressure']:g} Pa; output {run.out}"
+                         + (f"; restarted from {run.args.restart} (step {run.sim.step_count}, "
+                            f"{run.state['stage']})" if run.meta else ""))
 
     def execute(self, run):
-        comm, deck, progress = run.comm, run.deck, run.progress
-        t0 = time.perf_counter()
-        case, info = iso.prepare(comm, response.iso_deck(deck), deck["preparation"]["pressure"], case=run.case,
-                                 progress=progress, run=iso.SweepRun(operations=run.operations))
-        case.sim.elements.v[:] = 0.0
-        case.sim.elements.w[:] = 0.0
-        b = info["balance"]
-        run.state["preparation"] = {"converged": info["converged"], "steps": info["steps"],
-                                    "pressure": b["pressure"], "unbalanced": b["unbalanced"],
-                                    "seconds": time.perf_counter() - t0}
-        progress.say(f"prepared in {info['steps']} steps ({time.perf_counter() - t0:.1f} s): p = "
-                     f"{b['pressure']:.5g} Pa, converged: {info['converged']}")
-        layer = response.make_layer(comm, case, deck, progress)
-        run.case = layer.case
-        run.state["stage"] = "respond"
-        vtk = None
+        comm, deck, progress, stop = run.comm, run.deck, run.progress, run.args.steps
+        if run.state["stage"] == "prepare":
+            self.clock.enter("prepare", run.sim.step_count)
+            resume = run.meta is not None
+            self.sweep = iso.SweepRun(operations=run.operations, stop=stop,
+                                      state=dict(run.state["sweep"]) if resume else None)
+            t0 = time.perf_counter()
+            case, info = iso.prepare(comm, response.iso_deck(deck), deck["preparation"]["pressure"], case=run.case,
+                                     progress=progress, run=self.sweep, resume=resume)
+            self.sweep = None
+            run.state["sweep"] = None
+            case.sim.elements.v[:] = 0.0
+            case.sim.elements.w[:] = 0.0
+            b = info["balance"]
+            run.state["preparation"] = {"converged": info["converged"], "steps": info["steps"],
+                                        "pressure": b["pressure"], "unbalanced": b["unbalanced"],
+                                        "seconds": self.clock.state(run.sim.step_count)["seconds"]["prepare"]}
+            progress.say(f"prepared in {info['steps']} steps ({time.perf_counter() - t0:.1f} s): p = "
+                         f"{b['pressure']:.5g} Pa, converged: {info['converged']}")
+            self.clock.enter("replicate_open", run.sim.step_count)
+            self.layer = response.make_layer(comm, case, deck, progress)
+            run.case = self.layer.case
+            progress.n_elements = int(self.layer.geometry["n_grains"])   # the rate counts the copies
+            run.state["respond"] = response.new_state()
+            run.state["stage"] = "respond"
+            self.clock.close(run.sim.step_count)
+            progress.say(f"opened: {self.layer.geometry['n_grains']} grains, rows of {self.layer.geometry['n_bottom']} "
+                         f"(bottom) and {self.layer.geometry['n_top']} (top), "
+                         f"{self.clock.seconds['replicate_open']:.1f} s")
+        layer = self.layer
         if comm.is_root and deck["output"]["perturbation_vtk"]:
-            vtk = response_plot.PerturbationVTK(os.path.join(run.out, "response_vtk"))
+            self.vtk = response_plot.PerturbationVTK(os.path.join(run.out, "response_vtk"),
+                                                     entries=run.state.get("vtk") or [])
 
         def on_record(label, state, result):
-            if state is None or vtk is None:
+            if state is None or self.vtk is None:
                 return
             pg = result["per_grain"]
             g = layer.geometry
             area = g["length"][0] * g["length"][1]
             phi = float(np.sum(np.pi * state["radius"] ** 2) / area)
-            vtk.write(layer.sim.time, state["x"], state["radius"],
-                      response.per_grain_stress(pg["dM_yy"], state["radius"], g["thickness"], phi),
-                      pg["dM_yy"], pg["displacement"], np.arange(len(state["radius"])))
+            self.vtk.write(layer.sim.time, state["x"], state["radius"],
+                           response.per_grain_stress(pg["dM_yy"], state["radius"], g["thickness"], phi),
+                           pg["dM_yy"], pg["displacement"], np.arange(len(state["radius"])))
 
         res = response.respond(layer, deck, progress, run.operations, on_row=run.series.append,
-                               on_record=on_record)
+                               on_record=on_record, state=run.state["respond"], stop=stop, clock=self.clock)
         if res is not None:
             res.pop("_per_grain", None)
         run.state["result"] = res
         run.state["stage"] = "done"
 
     def summary(self, run):
+        # collective: the peak resident memory of every rank (ru_maxrss: KiB on Linux) of this
+        # process (after a restart: of the restarted run only)
+        rss = run.comm.allgather(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+        clock = (self.clock.state(run.sim.step_count) if self.clock is not None
+                 else run.state.get("clock") or {"seconds": {}, "steps": {}})
+        n = int(run.comm.sum(run.sim.elements.n_owned))
+        per_step = {k: (clock["seconds"][k] / clock["steps"][k] if clock["steps"].get(k) else None)
+                    for k in clock["seconds"]}
         return {"result": run.state.get("result"), "preparation": run.state.get("preparation"),
+                "stage": run.state.get("stage"), "respond_stage": (run.state.get("respond") or {}).get("stage"),
+                "n_grains": n, "peak_rss_mib": rss,
+                "stage_seconds": clock["seconds"], "stage_steps": clock["steps"], "seconds_per_step": per_step,
+                # grains x steps / s (the preparation has the unreplicated sample.n grains)
+                "element_steps_per_second": {k: ((run.deck["sample"]["n"] if k == "prepare" else n)
+                                                 * clock["steps"][k] / clock["seconds"][k]
+                                                 if clock["steps"].get(k) else None)
+                                             for k in clock["seconds"]},
                 "conventions": {"stress": "Love-Weber, per unit area of the plane divided by the thickness t "
                                           "(the mean diameter) [Pa], tension positive",
                                 "dsigma_yy": "change of sigma_yy from the reference state, binned: sum of the "
@@ -130,13 +214,13 @@ class Response(GranularDriver):
                                 "flamant": "sigma_yy = -2 F z^3 / (pi t r^4), with periodic images"},
                 "series": ["response.csv", "response.h5"]}
 
-    def protocol_state(self, run):
-        st = dict(run.state)
-        st["result"] = None     # the summary holds it; the checkpoint need not
-        return st
-
     def finish(self, run, summary):
         res = summary["result"]
+        if run.stopped:
+            print(f"{run.stopped}; continue with --restart "
+                  f"{run.writer.written[-1] if run.writer.written else '(no checkpoint: checkpoint.at_end = false)'}",
+                  flush=True)
+            return cli.EXIT_OK
         if res is None:
             return cli.EXIT_OK
         if run.deck["output"]["plot"]:

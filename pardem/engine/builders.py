@@ -188,8 +188,10 @@ def bonded_system(comm, positions, radii, density, pairs, material, frame=None, 
     elements.n_owned = int(owned.sum())
     if v0 is not None:
         elements.v[:] = v0[rows]
-    bonds = make_bonds(elements, local_row[pairs[touch]], material, frame, gids=bond_gids[touch]) \
-        if touch.any() else Bonds.empty()
+    # also with no bond here: the empty set then carries the material's switches (damped,
+    # breakable, densify_p0), which bonds migrating in later inherit (SlabComm.exchange unpacks
+    # them with these flags) and which a checkpoint written by this rank stores
+    bonds = make_bonds(elements, local_row[pairs[touch]], material, frame, gids=bond_gids[touch])
     cts = Contacts(CONTACT_LAWS[contact_law], prm, skin, None, reach=reach) if contact_law else None
 
     domain = None

@@ -219,3 +219,16 @@ def restore(comm, path, slab_axis=None, meta=None):
     if walls is not None:
         walls.move_to(sim.time)
     return GranularCase(sim=sim, constants=c)
+
+
+def continue_clock(sim, step, time):
+    """Let a freshly built ``sim`` (step 0) continue the step count ``step`` and time ``time`` [s]
+    of the run it belongs to (series, checkpoints and snapshots count steps from the run's start:
+    a case rebuilt after opening or replicating a packing): the forces of its first state are
+    computed first, as ``Simulation.run`` does at step 0."""
+    if int(step) == 0:
+        return                  # the first run computes them (``Simulation.run`` at step 0)
+    if sim.step_count == 0:
+        sim.run(0)
+    sim.step_count, sim.time = int(step), float(time)
+    sim.set_dt(sim.dt)          # the clock counts from here

@@ -1,7 +1,7 @@
 """The flexible lateral membranes of a 2D biaxial test as a load fix (issue 13, item 3).
 
 ``MembraneLoad`` (stage ``LOAD`` of ``pardem.engine.fixes``) keeps one chain per lateral side
-(``pardem.physics.membrane.chain``: the outermost grains, from a bottom-platen grain to a
+(``pardem.physics.membrane.walk``: the outermost grains, from a bottom-platen grain to a
 top-platen grain) and adds the confining pressure to its grains every force evaluation,
 ``f_k = p t (L1 n1 + L2 n2) / 2`` (``pardem.physics.membrane.forces``; ``t`` the thickness of the
 2D stress convention).
@@ -10,13 +10,28 @@ Parallel: the chain grains may be owned by any rank. Each force evaluation every
 the positions of the chain grains it owns (``Communicator.allgather``: a few hundred floats), so
 every rank holds the whole chain, computes the same forces from the same bits and adds those of its
 owned grains: the load is the same on any number of ranks. The chains are rebuilt every
-``rebuild_every`` steps from the gathered positions of all grains, alternately from the bottom and
-from the top (the walk from the top is the walk of the mirror image y -> -y, reversed), so that
-grains can join or leave the membrane (``side_chain``; its walk also turns round sharp convex
-tips of the boundary, which ``physics.membrane.chain`` stops on); a rebuild that finds no chain raises ValueError on every rank (the same data).
+``rebuild_every`` steps, alternately from the bottom and from the top (``side_chain``: the walk of
+``pardem.physics.membrane.walk`` with sharp convex tips turned round and dead ends left out), so
+that grains can join or leave the membrane; a rebuild that finds no chain raises ValueError on
+every rank (the same data).
+
+A rebuild gathers only candidate grains (``Communicator.allgatherv`` of gids and positions), not
+every grain: each rank preselects (``MembraneLoad.preselect``) both platens, the grains within
+``PRESELECT_WIDTH`` r_m of the outermost grain of their band of height r_m (band extremes reduced
+over the ranks) and those within ``PRESELECT_WIDTH`` r_m of the previous chains. Why this is
+exact: the walk is local (``physics.membrane``, "Locality"): its decisions read the platens and
+the grains within r_m of the grains it touched, in gid order. After the walk over the candidates
+each rank checks its own grains left out against the touched grains; if none is within r_m of one
+(on every rank), the candidates held everything the walk read, so by induction over its decisions
+the walk over all grains makes the same ones: the same chains and skips, bit for bit. Otherwise
+the preselection is widened round the first such touched grains in the walk's order (the walks
+agree with the full ones before the first; after it a walk may wander) and the walk repeated: the
+first faulty decision moves later every round, and after ``WIDEN_ROUNDS`` rounds every grain is
+gathered. The preselection is only a guess; the check is what makes it exact.
 
 State for a restart (``state`` / ``from_state``): the chains' gids, the rebuild count and step;
-with them the restarted run applies the same loads bit for bit.
+with them the restarted run applies the same loads bit for bit (the chains do not depend on which
+grains were gathered).
 """
 import numpy as np
 
@@ -24,75 +39,33 @@ from pardem.engine.fixes import LOAD, ElementSelection, _check_order
 from pardem.physics import membrane
 
 SIDES = membrane.SIDES      # ("left", "right")
-MAX_SKIPS = 200             # grains a chain may leave out before a rebuild gives up
+MAX_SKIPS = 200             # walks a rebuild tries, each leaving out the previous one's dead end
+PRESELECT_WIDTH = 3.0       # r_m: the band kept inside the lateral extremes and round the previous chains
+WIDEN_ROUNDS = 16           # widenings of a preselection that missed grains, then all grains
+WIDEN_DECISIONS = 8         # a widening covers the first faulty decision and those up to 8 after it
+NEVER = np.iinfo(np.int64).max
+MAX_BANDS = 1 << 16         # bands of the preselection (taller than r_m beyond: a grain flown far away)
 
 
-def _walk(xs, ys, start, excluded, top, r_m):
-    """``pardem.physics.membrane``'s walk (gift wrapping within ``r_m``: the candidate furthest
-    outward by angle, then by distance), except that a left turn of more than 90 degrees is
-    allowed, ranked after every other candidate: the walk then goes round a sharp convex tip of
-    the boundary instead of stopping on it (physics.membrane refuses those turns). A Python loop
-    over the chain's links (vectorised over the grains), run at rebuilds only. Returns
-    ``(links, reached)``."""
-    used = excluded.copy()
-    used[start] = True
-    links = [int(start)]
-    p = int(start)
-    dx, dy = 0.0, 1.0
-    r2 = r_m * r_m
-    for _ in range(len(xs)):
-        vx, vy = xs - xs[p], ys - ys[p]
-        d2 = vx * vx + vy * vy
-        ok = ~used & (d2 <= r2) & (d2 > 0.0)
-        if not ok.any():
-            return np.asarray(links, dtype=np.int64), False
-        q = np.nonzero(ok)[0]
-        sx, sy = dy, -dx
-        a = np.arctan2(sx * vy[q] - sy * vx[q], sx * vx[q] + sy * vy[q])
-        a = np.where(a < -np.pi + 1e-9, np.pi, a)          # straight back: +pi, as the physics walk
-        a = np.where(a <= -0.5 * np.pi, a + 2.0 * np.pi, a)   # sharp left turns: last
-        # smallest angle, then the furthest (angles equal within 1e-12 as in the physics walk)
-        best = np.min(a)
-        tie = q[a <= best + 1e-12]
-        nxt = int(tie[np.argmax(d2[tie])])
-        used[nxt] = True
-        links.append(nxt)
-        dx, dy = xs[nxt] - xs[p], ys[nxt] - ys[p]
-        p = nxt
-        if top[nxt]:
-            return np.asarray(links, dtype=np.int64), True
-    return np.asarray(links, dtype=np.int64), False
+def _walk_side(x, bottom, top, side, r_m, from_top):
+    """``physics.membrane.walk`` as the rebuild uses it: tips turned round, MAX_SKIPS walks."""
+    return membrane.walk(x, bottom, top, side, r_m, from_top=from_top, round_tips=True, attempts=MAX_SKIPS)
+
+
+def _failure(side, r_m, w):
+    return ValueError(f"the {side} membrane found no chain from platen to platen within r_m = {r_m:g} m "
+                      f"(after leaving out {len(w.skipped)} grains): a gap in the side wider than r_m")
 
 
 def side_chain(x, bottom, top, side, r_m, from_top=False):
     """The chain of ``side`` over positions ``x`` [n, 2] (indices, bottom -> top) and the indices
-    of the grains it had to leave out.
-
-    The walk (``_walk``) starts from the outermost bottom-platen grain that has a grain outside
-    the platen within ``r_m`` (an outermost platen grain may have none: the walk would stop at
-    once). A walk that still stops before the top platen ends in a dead end; that grain is left
-    out and the walk repeated (up to ``MAX_SKIPS`` times). ``from_top``: the walk of the mirror
-    image y -> -y from the top platen, reversed."""
-    sign = 1.0 if side == "right" else -1.0
-    xs = np.ascontiguousarray(sign * x[:, 0])
-    ys = np.ascontiguousarray(-x[:, 1] if from_top else x[:, 1])
-    low, high = (top, bottom) if from_top else (bottom, top)
-    skip = np.zeros(len(xs), dtype=np.bool_)
-    inner = np.nonzero(~low)[0]
-    for _ in range(MAX_SKIPS):
-        cand = np.nonzero(low & ~skip)[0]
-        if len(cand) and len(inner):
-            near = np.hypot(xs[cand, None] - xs[None, inner], ys[cand, None] - ys[None, inner]).min(axis=1)
-            cand = cand[near <= r_m]
-        if not len(cand):
-            break
-        start = cand[np.lexsort((ys[cand], xs[cand]))[-1]]
-        links, reached = _walk(xs, ys, int(start), low | skip, high, float(r_m))
-        if reached:
-            return (links[::-1] if from_top else links), np.nonzero(skip)[0]
-        skip[links[-1]] = True
-    raise ValueError(f"the {side} membrane found no chain from platen to platen within r_m = {r_m:g} m "
-                     f"(after leaving out {int(skip.sum())} grains): a gap in the side wider than r_m")
+    of the grains it had to leave out: ``physics.membrane.walk`` from the bottom platen (or, with
+    ``from_top``, from the top one), sharp convex tips turned round, a dead end left out and the
+    walk repeated (up to ``MAX_SKIPS`` walks). ValueError if no walk reaches the other platen."""
+    w = _walk_side(x, bottom, top, side, r_m, from_top)
+    if not w.reached:
+        raise _failure(side, r_m, w)
+    return w.links, w.skipped
 
 
 class MembraneLoad:
@@ -125,6 +98,8 @@ class MembraneLoad:
         self.skipped = {s: np.zeros(0, np.int64) for s in SIDES}   # grains the last rebuild left out
         self.rebuilds = 0
         self.built_at = -1
+        self.gathered = 0           # grains the last rebuild gathered, and its widening rounds
+        self.widened = 0
         self._selection = None
         self.positions = {}
         self.forces = {}
@@ -133,23 +108,78 @@ class MembraneLoad:
 
     # -- chains ------------------------------------------------------------------------------
 
-    def rebuild(self, sim):
-        """Rebuild both chains from the positions of every grain (collective), from the bottom on
-        even rebuilds and from the top on odd ones."""
+    def preselect(self, sim):
+        """Mask [n_owned] of this rank's candidate grains for a rebuild (collective; module
+        docstring): both platens, the grains within PRESELECT_WIDTH r_m inside the lateral
+        extremes of their band (height r_m) and round the previous chains' grains."""
         e, n = sim.elements, sim.elements.n_owned
-        parts = sim.comm.allgather((e.gid[:n].copy(), e.x[:n, :2].copy()))
-        gid = np.concatenate([p[0] for p in parts])
-        x = np.concatenate([p[1] for p in parts])
-        o = np.argsort(gid, kind="stable")
-        gid, x = gid[o], x[o]
-        bottom, top = np.isin(gid, self.bottom), np.isin(gid, self.top)
+        gid, x, y = e.gid[:n], e.x[:n, 0], e.x[:n, 1]
+        r, w = self.r_m, PRESELECT_WIDTH * self.r_m
+        keep = np.isin(gid, self.bottom) | np.isin(gid, self.top)
+        lim = sim.comm.max_array([y.max() if n else -np.inf, -y.min() if n else -np.inf])
+        y0, span = -lim[1], lim[0] + lim[1]
+        if not np.isfinite(span):
+            return np.ones(n, dtype=bool)       # no grains, or non-finite ones: gather all (the walk judges)
+        nb = int(min(span / r, MAX_BANDS - 1)) + 1
+        h = max(r, span / nb) * (1.0 + 1e-12)
+        band = np.clip(((y - y0) / h).astype(np.int64), 0, nb - 1)
+        ext = np.full((2, nb), -np.inf)
+        np.maximum.at(ext[0], band, x)
+        np.maximum.at(ext[1], band, -x)
+        ext = sim.comm.max_array(ext)
+        keep |= (x >= ext[0][band] - w) | (-x >= ext[1][band] - w)
+        pos = self.positions
+        if not pos and self.chains is not None:
+            pos = self.gather_positions(sim)        # a restart: chains known, positions not yet
+        if pos:
+            keep |= membrane.within(e.x[:n], np.vstack([pos[s] for s in SIDES]), w)
+        return keep
+
+    def rebuild(self, sim):
+        """Rebuild both chains (collective), from the bottom on even rebuilds and from the top on
+        odd ones, from the gathered candidate grains (module docstring). Sets ``gathered`` (grains
+        gathered by the last walk) and ``widened`` (its widening rounds)."""
+        e, n = sim.elements, sim.elements.n_owned
+        own_gid, own_x = e.gid[:n], np.ascontiguousarray(e.x[:n, :2])
         from_top = self.rebuilds % 2 == 1
+        keep = self.preselect(sim)
+        for round_ in range(WIDEN_ROUNDS + 2):
+            if round_ == WIDEN_ROUNDS + 1:
+                keep[:] = True                      # the last resort: every grain
+            gid = sim.comm.allgatherv(np.ascontiguousarray(own_gid[keep], dtype=np.int64))
+            x = sim.comm.allgatherv(own_x[keep])
+            o = np.argsort(gid, kind="stable")      # gid order: the walk's order whatever was gathered
+            gid, x = gid[o], x[o]
+            bottom, top = np.isin(gid, self.bottom), np.isin(gid, self.top)
+            walks = {side: _walk_side(x, bottom, top, side, self.r_m, from_top) for side in SIDES}
+            # per side, the first decision that read near a grain this rank left out (a hair over
+            # r_m: the walk compares d^2 with r_m^2, this hypot with r_m; erring wide only costs
+            # a widening): the walks agree with those over all grains before it
+            left_out = own_x[~keep]
+            first, bad = {}, {}
+            for side in SIDES:
+                t = np.nonzero(walks[side].touched)[0]
+                bad[side] = t[membrane.within(x[t], left_out, self.r_m * (1.0 + 1e-9))]
+                first[side] = sim.comm.min(int(walks[side].order[bad[side]].min()) if len(bad[side]) else NEVER)
+            if all(first[side] == NEVER for side in SIDES):
+                break
+            # widen round this rank's faulty decisions shortly after the first (later ones come
+            # from a walk gone wrong, which wanders: widening round all would gather most grains);
+            # the first faulty decision moves on every round
+            for side in SIDES:
+                o = walks[side].order[bad[side]]
+                at = bad[side][o <= first[side] + WIDEN_DECISIONS]
+                if len(at):
+                    keep |= membrane.within(own_x, x[at], PRESELECT_WIDTH * self.r_m)
+        self.gathered, self.widened = len(gid), round_
         chains = {}
         self.skipped = {}
         for side in SIDES:
-            links, skipped = side_chain(x, bottom, top, side, self.r_m, from_top)
-            chains[side] = gid[links]
-            self.skipped[side] = gid[skipped]
+            w = walks[side]
+            if not w.reached:
+                raise _failure(side, self.r_m, w)
+            chains[side] = gid[w.links]
+            self.skipped[side] = gid[w.skipped]
         self.set_chains(chains)
         self.rebuilds += 1
         self.built_at = sim.step_count

@@ -1,7 +1,14 @@
 """Figures and field files of the 2D biaxial test (``pardem.protocols.biaxial``), rank 0 only.
 
 * ``curves(path, rows)``: deviator q / pc and volumetric strain against axial strain, one line per
-  confining pressure (PNG, labelled axes and units);
+  confining pressure (PNG, labelled axes and units); for cemented samples a third panel: the
+  broken-cement count and broken fraction against axial strain;
+* ``cement_map(path, x, radius, ends, strain, title, band)``: the broken cements of a loading as
+  segments between the pair's centres, coloured by the axial strain at which they broke, over the
+  grains (drawn as disks) at the end of the loading, with the last window's band centre line;
+* ``write_cement_fields(path, x, gid, radius, broken, intact, pairs, strain)``: the same as a VTU
+  (grains as points with ``radius``, ``gid``, ``cements_broken``, ``cements_intact``; the broken
+  cements as lines with cell data ``break_strain``, -1 on the grains' vertex cells);
 * ``maps(path, field, title)``: the incremental shear strain and the grains' rotation increments of
   a localisation window, drawn at the grains' centres, with the detected band's centre line;
 * ``write_fields(path, field, gid, radius)``: the same fields as a VTK XML unstructured grid of points
@@ -32,20 +39,30 @@ def curves(path, rows):
     plt = _pyplot()
     if plt is None or not rows:
         return False
-    fig, ax = plt.subplots(2, 1, figsize=(6, 7), sharex=True)
+    cemented = any(r.get("cements_intact", 0) + r.get("cements_broken", 0) > 0 for r in rows)
+    fig, ax = plt.subplots(3 if cemented else 2, 1, figsize=(6, 10 if cemented else 7), sharex=True)
+    right = ax[2].twinx() if cemented else None
     for k in sorted({int(r["pressure_index"]) for r in rows}):
         rs = [r for r in rows if int(r["pressure_index"]) == k]
         ea = [100.0 * r["eps_axial"] for r in rs]
         pc = rs[0]["pc"]
-        ax[0].plot(ea, [r["q"] / pc for r in rs], label=f"pc = {pc:.3g} Pa")
+        line = ax[0].plot(ea, [r["q"] / pc for r in rs], label=f"pc = {pc:.3g} Pa")[0]
         ax[1].plot(ea, [100.0 * r["eps_vol"] for r in rs], label=f"pc = {pc:.3g} Pa")
+        if cemented:
+            ax[2].plot(ea, [r["cements_broken"] for r in rs], color=line.get_color(), label=f"pc = {pc:.3g} Pa")
+            right.plot(ea, [100.0 * r["broken_fraction"] for r in rs], color=line.get_color(), ls=":")
     ax[0].set_ylabel("deviator q / pc [-]")
     ax[1].set_ylabel("volumetric strain eps_v [%] (contraction +)")
-    ax[1].set_xlabel("axial strain eps_a [%]")
+    if cemented:
+        ax[2].set_ylabel("broken cements [-] (solid)")
+        right.set_ylabel("broken fraction [%] (dotted)")
+        right.set_ylim(bottom=0.0)
+        ax[2].set_ylim(bottom=0.0)
+    ax[-1].set_xlabel("axial strain eps_a [%]")
     for a in ax:
         a.grid(alpha=0.3)
         a.legend(fontsize=8)
-    ax[0].set_title("2D biaxial test, flexible membranes")
+    ax[0].set_title("2D biaxial test, flexible membranes" + (", cemented" if cemented else ""))
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -103,3 +120,64 @@ def write_fields(path, field, gid, radius):
             "cements_broken": np.asarray(field.get("cements_broken", np.zeros(len(x))), dtype=np.int32)}
     cells = [("vertex", np.arange(len(x), dtype=np.int64).reshape(-1, 1))]
     meshio.write(path, meshio.Mesh(pts, cells, point_data=data), file_format="vtu")
+
+
+def cement_map(path, x, radius, ends, strain, title="", band=None):
+    """Broken cements over the grains at the end of a loading: grains at ``x`` [n, 2] [m] of
+    ``radius`` [n] [m] as grey disks, each broken cement a segment between its pair's centres
+    ``ends`` [m, 2, 2] [m], coloured by the axial strain at which it broke ``strain`` [m] (drawn
+    in mm and %); ``band``: a shear band (``centre``, ``direction``) drawn as a dashed line."""
+    plt = _pyplot()
+    if plt is None:
+        return False
+    from matplotlib.collections import EllipseCollection, LineCollection
+    x = np.asarray(x, dtype=float) * 1e3
+    d = 2e3 * np.asarray(radius, dtype=float)
+    fig, ax = plt.subplots(figsize=(7, 7))
+    ax.add_collection(EllipseCollection(d, d, np.zeros(len(d)), units="xy", offsets=x,
+                                        offset_transform=ax.transData, facecolors="0.88", edgecolors="0.6",
+                                        linewidths=0.3))
+    ends = np.asarray(ends, dtype=float).reshape(-1, 2, 2) * 1e3
+    strain = 100.0 * np.asarray(strain, dtype=float)
+    if len(ends):
+        lc = LineCollection(ends, array=strain, cmap="plasma", linewidths=1.8)
+        lc.set_clim(0.0, max(float(strain.max()), 1e-12))
+        ax.add_collection(lc)
+        fig.colorbar(lc, ax=ax, shrink=0.8, label="axial strain at rupture eps_a [%]")
+    if band is not None:
+        c, u = np.asarray(band["centre"]) * 1e3, np.asarray(band["direction"])
+        span = np.ptp(x, axis=0).max()
+        ax.plot([c[0] - span * u[0], c[0] + span * u[0]], [c[1] - span * u[1], c[1] + span * u[1]], "k--", lw=0.8,
+                label=f"shear band ({band['angle_deg']:.1f} deg)")
+        ax.legend(fontsize=8, loc="upper right")
+    pad = float(d.max()) if len(d) else 0.0
+    ax.set_xlim(x[:, 0].min() - pad, x[:, 0].max() + pad)
+    ax.set_ylim(x[:, 1].min() - pad, x[:, 1].max() + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return True
+
+
+def write_cement_fields(path, x, gid, radius, broken, intact, pairs, strain):
+    """Grains [n] as points (``x`` [n, 2] [m]; point data ``radius`` [m], ``gid``,
+    ``cements_broken`` and ``cements_intact`` per grain) and the broken cements as lines between
+    the rows ``pairs`` [m, 2] of their two grains (cell data ``break_strain``: the axial strain at
+    rupture; -1 on the grains' vertex cells)."""
+    import meshio
+    x = np.asarray(x, dtype=np.float64)
+    pts = np.column_stack([x, np.zeros(len(x))])
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    data = {"radius": np.asarray(radius, dtype=np.float64), "gid": np.asarray(gid, dtype=np.int64),
+            "cements_broken": np.asarray(broken, dtype=np.int32), "cements_intact": np.asarray(intact, dtype=np.int32)}
+    cells = [("vertex", np.arange(len(x), dtype=np.int64).reshape(-1, 1))]
+    cell_data = [np.full(len(x), -1.0)]
+    if len(pairs):
+        cells.append(("line", pairs))
+        cell_data.append(np.asarray(strain, dtype=np.float64))
+    meshio.write(path, meshio.Mesh(pts, cells, point_data=data, cell_data={"break_strain": cell_data}),
+                 file_format="vtu")

@@ -96,12 +96,16 @@ def plot(path, result):
 
 
 class PerturbationVTK:
-    """Rank 0's writer of the perturbation snapshots (module docstring) into ``directory``."""
+    """Rank 0's writer of the perturbation snapshots (module docstring) into ``directory``.
 
-    def __init__(self, directory):
-        self.directory = directory
-        os.makedirs(directory, exist_ok=True)
-        self.entries = []
+    ``entries``: the ``(time [s], absolute path)`` of the snapshots an interrupted run wrote
+    (``self.entries`` of its writer, kept in its checkpoint): a restart, written into another
+    folder, continues their numbering and its ``response.pvd`` lists them too (relative paths)."""
+
+    def __init__(self, directory, entries=()):
+        self.directory = os.path.abspath(directory)
+        os.makedirs(self.directory, exist_ok=True)
+        self.entries = [(float(t), str(p)) for t, p in entries]
 
     def write(self, time, x, radius, dsigma_yy, dM_yy, displacement, gid):
         k = len(self.entries)
@@ -113,15 +117,17 @@ class PerturbationVTK:
                                        "dM_yy": np.asarray(dM_yy, dtype=np.float64),
                                        "displacement": np.ascontiguousarray(displacement, dtype=np.float64),
                                        "gid": np.asarray(gid, dtype=np.int64)})
-        meshio.write(os.path.join(self.directory, name), mesh, file_format="vtu")
-        self.entries.append((float(time), name))
+        path = os.path.join(self.directory, name)
+        meshio.write(path, mesh, file_format="vtu")
+        self.entries.append((float(time), path))
         self._pvd()
         return name
 
     def _pvd(self):
         lines = ['<?xml version="1.0"?>', '<VTKFile type="Collection" version="0.1">', "  <Collection>"]
-        for t, name in self.entries:
-            lines.append(f'    <DataSet timestep="{t:.9e}" group="" part="0" file="{name}"/>')
+        for t, path in self.entries:
+            lines.append(f'    <DataSet timestep="{t:.9e}" group="" part="0" '
+                         f'file="{os.path.relpath(path, self.directory)}"/>')
         lines += ["  </Collection>", "</VTKFile>", ""]
         path = os.path.join(self.directory, "response.pvd")
         with open(path + ".tmp", "w") as fh:

@@ -3,12 +3,23 @@
 The same columns as the CSV series (by default compress's ``SERIES_COLUMNS``; other drivers pass
 their own ``columns``, ``units``, ``row`` and ``description``): one resizable 1-D dataset per column at the
 file root, ``step`` (and compress's ``bonds_*``, or the given ``int_columns``) as int64 and the others as float64, each with a ``units`` attribute. The file
-attributes ``columns`` (the column order) and ``description`` say what the file holds. Rows are
-appended as they come and the file is flushed after each one, so a crash keeps the rows written.
+attributes ``columns`` (the column order) and ``description`` say what the file holds.
+
+Rows are buffered in memory and written together (one resize and one write per column, then an
+HDF5 flush) every ``flush_rows`` rows or when ``flush_seconds`` have passed since the last flush
+(checked at each row), at ``flush()`` and at ``close()`` (also when the writer is garbage-collected
+or the interpreter exits normally). A hard crash (SIGKILL, ``os._exit``, an ``MPI_Abort`` from
+another rank) therefore loses at most the rows appended since the last flush: fewer than
+``flush_rows`` rows, or ``flush_seconds`` of them. The file on disk always holds a prefix of the
+rows appended. A restarted run does not read this file: it rewrites it from the rows its checkpoint
+kept (``samples``).
 
 Written with h5py's default (serial) driver by one process: plain h5py reads it, e.g.
 ``h5py.File("series.h5")["force_fixed"][:]``.
 """
+import time
+import weakref
+
 import h5py
 import numpy as np
 
@@ -19,6 +30,8 @@ DESCRIPTION = ("pardem time series: one row per sample of the plate displacement
                "from the plates (compression negative); one dataset per column, in the order of the "
                "'columns' attribute, with its unit in the dataset's 'units' attribute")
 CHUNK_ROWS = 1024
+FLUSH_ROWS = 100        # rows buffered before a write (a default run samples about 200 rows)
+FLUSH_SECONDS = 10.0    # and at most this long [s] between two flushes while rows arrive
 
 
 def _dtype(column, int_columns=None):
@@ -28,20 +41,28 @@ def _dtype(column, int_columns=None):
 
 
 class SeriesH5:
-    """HDF5 series file; ``append`` writes and flushes one row (so a crash keeps rows).
+    """HDF5 series file; ``append`` buffers one row, written every ``flush_rows`` rows or
+    ``flush_seconds`` seconds (see the module docstring for what a crash keeps).
 
-    ``samples``: ``Reducer.sample`` dicts written first (a restart rewrites the rows it kept).
-    The file at ``path`` is replaced. ``columns``, ``units`` (one per column), ``row`` (``row(sample)
-    -> values`` in the columns' order), ``description`` and ``int_columns`` (the int64 columns;
-    default ``step`` and ``bonds_*``) default to compress's series.
+    ``samples``: ``Reducer.sample`` dicts written (and flushed) first: a restart rewrites the rows
+    it kept. The file at ``path`` is replaced. ``columns``, ``units`` (one per column), ``row``
+    (``row(sample) -> values`` in the columns' order), ``description`` and ``int_columns`` (the
+    int64 columns; default ``step`` and ``bonds_*``) default to compress's series.
+    ``flush_rows`` >= 1; ``flush_seconds`` >= 0 [s] (0: every row is written and flushed at once).
+    ``n_rows``: rows appended so far (written or buffered).
     """
 
     def __init__(self, path, samples=(), columns=SERIES_COLUMNS, units=SERIES_UNITS, row=sample_row,
-                 description=DESCRIPTION, int_columns=None):
+                 description=DESCRIPTION, int_columns=None, flush_rows=FLUSH_ROWS, flush_seconds=FLUSH_SECONDS):
         if len(columns) != len(units):
             raise ValueError(f"{len(columns)} columns but {len(units)} units")
+        if not (isinstance(flush_rows, (int, np.integer)) and flush_rows >= 1):
+            raise ValueError(f"flush_rows must be an integer >= 1, got {flush_rows!r}")
+        if not (np.isfinite(flush_seconds) and flush_seconds >= 0.0):
+            raise ValueError(f"flush_seconds must be a finite number >= 0 [s], got {flush_seconds!r}")
         self.path = path
         self.row = row
+        self.flush_rows, self.flush_seconds = int(flush_rows), float(flush_seconds)
         self._f = h5py.File(path, "w")
         try:
             self._f.attrs["columns"] = list(columns)
@@ -52,35 +73,60 @@ class SeriesH5:
                                             dtype=_dtype(name, int_columns), chunks=(CHUNK_ROWS,))
                 ds.attrs["units"] = unit
                 self._ds.append(ds)
-            self.n_rows = 0
-            self._write([row(s) for s in samples])
+            self._pending = [row(s) for s in samples]
+            self.n_rows = len(self._pending)
+            _write(self._f, self._ds, self._pending)
         except BaseException:
             self._f.close()
             raise
+        self._last_flush = time.monotonic()
+        # the buffered rows reach the file even when close is never called (no reference to self)
+        self._finalizer = weakref.finalize(self, _write_and_close, self._f, self._ds, self._pending)
 
     def append(self, sample):
-        self._write([self.row(sample)])
+        """Buffer one row; write the buffer when it holds ``flush_rows`` rows or the last flush is
+        ``flush_seconds`` old."""
+        # copies of array values: a buffered row must not change with a caller's array
+        self._pending.append([v.copy() if isinstance(v, np.ndarray) else v for v in self.row(sample)])
+        self.n_rows += 1
+        if len(self._pending) >= self.flush_rows or time.monotonic() - self._last_flush >= self.flush_seconds:
+            self.flush()
 
-    def _write(self, rows):
-        if not rows:
-            self._f.flush()
-            return
-        n0, n1 = self.n_rows, self.n_rows + len(rows)
-        for k, ds in enumerate(self._ds):
-            ds.resize((n1,))
-            ds[n0:n1] = np.array([r[k] for r in rows], dtype=ds.dtype)
-        self.n_rows = n1
-        self._f.flush()
+    def flush(self):
+        """Write the buffered rows and flush the file (a checkpoint of the run may call it)."""
+        if self._f.id.valid:
+            _write(self._f, self._ds, self._pending)
+        self._last_flush = time.monotonic()
 
     def close(self):
-        if self._f.id.valid:
-            self._f.close()
+        """Write the buffered rows and close the file (idempotent)."""
+        self._finalizer()
 
     def __enter__(self):
         return self
 
     def __exit__(self, *exc):
         self.close()
+
+
+def _write(f, datasets, rows):
+    """Append ``rows`` (emptied in place) to ``datasets``: one resize and one write per column."""
+    if rows:
+        n0 = datasets[0].shape[0] if datasets else 0
+        n1 = n0 + len(rows)
+        for k, ds in enumerate(datasets):
+            ds.resize((n1,))
+            ds[n0:n1] = np.array([r[k] for r in rows], dtype=ds.dtype)
+        rows.clear()
+    f.flush()
+
+
+def _write_and_close(f, datasets, rows):
+    if f.id.valid:
+        try:
+            _write(f, datasets, rows)
+        finally:
+            f.close()
 
 
 def read_series_h5(path):

@@ -56,6 +56,29 @@ class Communicator:
         """List of every rank's ``obj`` (pickled; for small metadata)."""
         return self.comm.allgather(obj) if self.size > 1 else [obj]
 
+    def allgatherv(self, values):
+        """Every rank's rows of ``values`` (a float64 or int64 array [n_rank, ...], the trailing
+        shape the same on every rank, n_rank may be 0) concatenated in rank order: [sum n_rank,
+        ...], the same on every rank (``MPI_Allgatherv``, no pickling)."""
+        a = np.ascontiguousarray(values)
+        if a.dtype not in (np.float64, np.int64) or a.ndim < 1:
+            raise TypeError(f"allgatherv: values of dtype {a.dtype} and {a.ndim} dimensions; expected a float64 "
+                            "or int64 array with a first (row) axis")
+        if self.size == 1:
+            return a.copy()
+        tail = a.shape[1:]
+        width = int(np.prod(tail, dtype=np.int64))
+        meta = np.empty((self.size, 2 + len(tail)), dtype=np.int64)
+        self.comm.Allgather(np.array([a.shape[0], a.dtype == np.int64, *tail], dtype=np.int64), meta)
+        if np.any(meta[:, 1:] != meta[0, 1:]):
+            raise ValueError(f"allgatherv: ranks differ in dtype or trailing shape: {meta[:, 1:].tolist()}")
+        items = meta[:, 0] * width
+        displs = np.concatenate([[0], np.cumsum(items)[:-1]])
+        out = np.empty((int(meta[:, 0].sum()),) + tail, dtype=a.dtype)
+        kind = self._MPI.INT64_T if a.dtype == np.int64 else self._MPI.DOUBLE
+        self.comm.Allgatherv([a, kind], [out, (items.tolist(), displs.tolist()), kind])
+        return out
+
     def gather(self, obj, root=0):
         """List of every rank's ``obj`` on ``root`` (None elsewhere)."""
         return self.comm.gather(obj, root=root) if self.size > 1 else [obj]

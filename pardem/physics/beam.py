@@ -164,15 +164,16 @@ OUT_WIDTH = 11
 
 @njit(cache=True, inline="always", error_model="numpy")
 def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_t, rot_damping, u1, p1, u2, p2, out,
-              damped, densify=False, f_yield=None, plastic=None, p0=0.0):
+              damped, densify=False, f_yield=None, plastic=None, p0=0.0, breakable=True):
     """Force on end 1 and moments on ends 1 and 2 of bond ``b``; writes ``out`` [OUT_WIDTH]: F1, M1, M2
-    (``OUT_FORCE_1``, ``OUT_MOMENT_1``, ``OUT_MOMENT_2``) and, for the rupture test, the axial force
+    (``OUT_FORCE_1``, ``OUT_MOMENT_1``, ``OUT_MOMENT_2``) and, for the rupture test (only with
+    ``breakable``: a loop of unbreakable bonds skips their square root), the axial force
     ``out[OUT_AXIAL]`` (tension positive) and the shear force magnitude ``out[OUT_SHEAR]`` [N]
     (both elastic: damping excluded, the strength criterion of docs/physics.md section 7).
 
     ``rot_damping`` [n, ROT_DAMPING_WIDTH] : the damping matrix of the two rotation modes of each
     bond (``rotation_damping_table``; read only when ``damped``).
-    ``damped`` and ``densify`` must be compile-time constants at the call site (True or False
+    ``damped``, ``densify`` and ``breakable`` must be compile-time constants at the call site (True or False
     literals): a loop without them carries no trace of their terms. With ``densify``, a bond with
     ``f_yield[b] > 0`` yields in compression and updates ``plastic[b]`` (``densified_extension``).
     Returns the elastic energy of the bond [J] (damping excluded).
@@ -227,8 +228,9 @@ def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_t, rot_damping, 
     g0 = t10 + t20
     g1 = t11 + t21
     g2 = t12 + t22
-    out[OUT_AXIAL] = ka[b] * dL
-    out[OUT_SHEAR] = fs * np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)   # th_k are normal to n: |n x g| = |g|
+    if breakable:
+        out[OUT_AXIAL] = ka[b] * dL
+        out[OUT_SHEAR] = fs * np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)   # th_k are normal to n: |n x g| = |g|
 
     # rates (damping)
     if damped:
@@ -303,7 +305,7 @@ def _bond_loop(damped, breakable, densify):
             i = bi[b]
             j = bj[b]
             e = beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_t, rot_damping, u1, p1,
-                          u2, p2, out, damped, densify, f_yield, plastic, p0)
+                          u2, p2, out, damped, densify, f_yield, plastic, p0, breakable)
             if breakable:
                 mode = rupture_mode(out[OUT_AXIAL], out[OUT_SHEAR], f_tensile[b], f_shear[b])
                 if mode != 0:

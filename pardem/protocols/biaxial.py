@@ -71,6 +71,7 @@ import numpy as np
 from pardem.config import DeckError, Field, Schema, boolean, number, number_list, positive
 from pardem.engine import cement as cementing
 from pardem.engine import fixes, granular
+from pardem.engine.contacts import KEY_BASE
 from pardem.engine.membrane_load import MembraneLoad
 from pardem.engine.open_cell import open_axes
 from pardem.parallel.exact_sum import exact_sum
@@ -168,16 +169,17 @@ SCHEMA = Schema({
 
 COLUMNS = ("step", "time", "pressure_index", "pc", "eps_axial", "eps_vol", "sigma_axial", "sigma_lateral",
            "sigma_axial_inner", "sigma_lateral_inner", "q", "s", "sin_phi", "sigma_axial_platens", "coordination", "sliding_fraction", "membrane_grains",
-           "n_grains", "cements_intact", "cements_fading", "broken_fraction", "kinetic_energy")
+           "n_grains", "cements_intact", "cements_fading", "cements_broken", "broken_fraction", "kinetic_energy")
 UNITS = ("1", "s", "1", "Pa", "1", "1", "Pa", "Pa", "Pa", "Pa", "Pa", "Pa", "1", "Pa", "1", "1", "1", "1", "1", "1",
-         "1", "J")
-INT_COLUMNS = ("step", "pressure_index", "membrane_grains", "n_grains", "cements_intact", "cements_fading")
+         "1", "1", "J")
+INT_COLUMNS = ("step", "pressure_index", "membrane_grains", "n_grains", "cements_intact", "cements_fading",
+               "cements_broken")
 DESCRIPTION = ("pardem biaxial series: one row per sample of the loading of each confining pressure: axial "
                "strain 1 - H/H0, volumetric strain 1 - A/A0 (membrane polygon area, contraction positive), "
                "Love-Weber stresses of the contacts over the sample's area times the thickness (compression "
                "positive; _inner: without the contacts between two platen grains), deviator q, mean in-plane stress s, sin phi = q / 2s, the platens' axial stress from "
                "their reactions, coordination, sliding-contact fraction, membrane grains, grains, cement counts "
-               "and broken fraction (cemented samples), kinetic energy")
+               "(intact, fading, broken = made - intact) and broken fraction (cemented samples), kinetic energy")
 
 
 def iso_deck(deck):
@@ -194,25 +196,13 @@ def mean_radius(deck):
 
 # -- the stages ------------------------------------------------------------------------------
 
-def continue_clock(sim, step, time):
-    """Let a freshly built ``sim`` (step 0) continue the step count and time of the run (the
-    series, checkpoints and snapshots count steps from the run's start): the forces of its first
-    state are computed first, as ``Simulation.run`` does at step 0."""
-    if int(step) == 0:
-        return                  # the first run computes them (``Simulation.run`` at step 0)
-    if sim.step_count == 0:
-        sim.run(0)
-    sim.step_count, sim.time = int(step), float(time)
-    sim.set_dt(sim.dt)          # the clock counts from here
-
-
 def prepare(comm, deck, pc, step=0, time=0.0, progress=None):
     """The periodic 2D packing at static equilibrium at ``pc`` (frictionless), its steps counted
     from ``step`` (time ``time``); ``(case, info)``."""
     iso = iso_deck(deck)
     case = isotropic.build_gas(comm, iso)
     if step:
-        continue_clock(case.sim, step, time)
+        granular.continue_clock(case.sim, step, time)
     return isotropic.prepare(comm, iso, float(pc), case=case, progress=progress)
 
 
@@ -225,7 +215,7 @@ def open_sample(comm, case, deck):
     yb, yt = lo + ld["platen_offset"] * R, lo + L - ld["platen_offset"] * R
     hw = ld["platen_halfwidth"] * R
     opened = open_axes(comm, case, ("x", "y"), keep=lambda x: (x[:, 1] >= yb - hw) & (x[:, 1] <= yt + hw))
-    continue_clock(opened.sim, case.sim.step_count, case.sim.time)
+    granular.continue_clock(opened.sim, case.sim.step_count, case.sim.time)
     e = opened.sim.elements
     n = e.n_owned
     parts = comm.allgather((e.gid[:n].copy(), e.x[:n, 1].copy()))
@@ -334,17 +324,18 @@ def reference(case, mem, geo, deck):
             "speed": platen_speed(deck, geo)}
 
 
-def load(case, deck, st, mem, platens, on_row, operations=(), stop=None, on_event=None):
+def load(case, deck, st, mem, platens, on_row, operations=(), stop=None, on_event=None, record=None):
     """Run the loading of the pressure of ``st`` to ``loading.strain`` (from wherever it is),
     sampling ``output.samples`` rows through ``on_row(row)``; ``on_event(step)`` at each
     localisation window's start or end step (``event_steps``) not yet in ``st["events_done"]``.
-    ``stop``: the step of ``--steps`` (``StepLimit``)."""
+    ``stop``: the step of ``--steps`` (``StepLimit``). ``record``: a ``CementRecord`` updated at
+    every sample (cemented samples: when each cement broke)."""
     sim = case.sim
     start = st["reference"]["step"]
     total = loading_steps(deck, sim.dt)
     end = start + total
     every = max(1, total // deck["output"]["samples"])
-    sampler = Sampler(case, st, mem, platens, every, start, on_row, end)
+    sampler = Sampler(case, st, mem, platens, every, start, on_row, end, record)
     done = st.setdefault("events_done", [])
     marks = sorted({s for pair in event_steps(deck, sim.dt, start) for s in pair})
 
@@ -386,8 +377,9 @@ def contact_measures(sim, platen_gids):
     return lw, (float(tot[1] / tot[0]) if tot[0] else 0.0), 2.0 * float(tot[0]) / float(tot[2]), int(tot[2])
 
 
-def sample(case, st, mem, platens):
-    """One row of ``COLUMNS`` (collective); ``st``: the pressure's state (reference, index)."""
+def sample(case, st, mem, platens, record=None):
+    """One row of ``COLUMNS`` (collective); ``st``: the pressure's state (reference, index);
+    ``record``: a ``CementRecord`` told which cements broke since its last update (cemented)."""
     sim = case.sim
     if not mem.positions:
         mem.positions = mem.gather_positions(sim)
@@ -407,13 +399,16 @@ def sample(case, st, mem, platens):
     q, s = sa - sl, 0.5 * (sa + sl)
     intact, fading = cementing.cement_counts(sim)
     n0 = case.constants.get("cemented_pairs", 0)
+    eps_a = 1.0 - H / ref["height"]
+    if record is not None and n0:
+        record.update(intact_cements(sim), eps_a, sim.step_count)
     return {"step": sim.step_count, "time": sim.time, "pressure_index": st["index"], "pc": st["pc"],
-            "eps_axial": 1.0 - H / ref["height"], "eps_vol": 1.0 - A / ref["area"],
+            "eps_axial": eps_a, "eps_vol": 1.0 - A / ref["area"],
             "sigma_axial": sa, "sigma_lateral": sl, "sigma_axial_inner": -float(inner[1, 1]),
             "sigma_lateral_inner": -float(inner[0, 0]), "q": q, "s": s, "sin_phi": q / (2.0 * s) if s > 0 else 0.0,
             "sigma_axial_platens": sap, "coordination": Z, "sliding_fraction": sliding,
             "membrane_grains": int(sum(len(c) for c in mem.chains.values())), "n_grains": n,
-            "cements_intact": intact, "cements_fading": fading,
+            "cements_intact": intact, "cements_fading": fading, "cements_broken": n0 - intact if n0 else 0,
             "broken_fraction": 1.0 - intact / n0 if n0 else 0.0,
             "kinetic_energy": sim.kinetic_energy()}
 
@@ -423,9 +418,10 @@ class Sampler:
     from the run's start: ``Simulation.run`` calls an operation at those), at ``start`` and at
     ``end``, from ``start`` on; a run cut in pieces samples the steps of the uncut one."""
 
-    def __init__(self, case, st, mem, platens, every, start, on_row, end=None):
+    def __init__(self, case, st, mem, platens, every, start, on_row, end=None, record=None):
         self.case, self.st, self.mem, self.platens = case, st, mem, platens
         self.every, self.start, self.on_row, self.end = int(every), int(start), on_row, end
+        self.record = record
         self.last = -1
 
     def __call__(self, sim):
@@ -435,7 +431,12 @@ class Sampler:
         if step % self.every != 0 and step not in (self.start, self.end):
             return
         self.last = step
-        self.on_row(sample(self.case, self.st, self.mem, self.platens))
+        self.on_row(sample(self.case, self.st, self.mem, self.platens, self.record))
+
+
+def peak_index(rows):
+    """Index of the row of the largest mobilised friction ``sin phi`` (the peak)."""
+    return int(np.argmax(np.clip(np.array([r["sin_phi"] for r in rows]), -1.0, 1.0)))
 
 
 def angles(rows, residual_fraction=0.2):
@@ -443,7 +444,7 @@ def angles(rows, residual_fraction=0.2):
     ea = np.array([r["eps_axial"] for r in rows])
     ev = np.array([r["eps_vol"] for r in rows])
     sp = np.clip(np.array([r["sin_phi"] for r in rows]), -1.0, 1.0)
-    k = int(np.argmax(sp))
+    k = peak_index(rows)
     last = ea >= (1.0 - residual_fraction) * ea[-1]
     w = max(1, len(rows) // 20)
     dea, dev = ea[w:] - ea[:-w], ev[w:] - ev[:-w]
@@ -457,6 +458,89 @@ def angles(rows, residual_fraction=0.2):
             "strain_at_psi_max": float(ea[w:][ok][j]) if ok.any() else 0.0,
             "final_eps_vol": float(ev[-1]),
             "lateral_stress_error_max": float(np.max(np.abs([r["sigma_lateral"] / r["pc"] - 1.0 for r in rows])))}
+
+
+# -- cement damage ---------------------------------------------------------------------------
+
+def intact_cements(sim):
+    """The intact cements (collective): their pair keys (``engine.contacts.pair_keys``: the gid
+    pair, lower gid first), each pair once, sorted, the same int64 array on every rank."""
+    c = sim.contacts
+    if c.history.shape[1] != hm.WIDTH_CEMENTED:
+        return np.zeros(0, np.int64)
+    ok = c.counted_once(sim.elements.n_owned) & (c.history[:, hm.CEMENT_STATE] > 0.0)
+    return np.sort(np.concatenate(sim.comm.allgather(np.asarray(c.keys[ok], dtype=np.int64).copy())))
+
+
+def key_pairs(keys):
+    """Gid pairs [m, 2] (int64) of pair keys [m]."""
+    keys = np.asarray(keys, dtype=np.int64)
+    return np.column_stack([keys // KEY_BASE, keys % KEY_BASE])
+
+
+class CementRecord:
+    """When each cement of a loading broke. The cement law keeps no rupture time (its state goes
+    from +1 to fading to 0), so the record is made from the series: ``initial`` are the keys of
+    the cements made when the friction was switched on; at each sample (``update``) the cements
+    of ``initial`` no longer intact that are not yet recorded are appended with the sample's axial
+    strain and step: each broke in the sampling interval before (the resolution is
+    ``loading.strain / output.samples``). A cement never heals (no cement is made during the
+    loading), so the record only grows; broken during the settling = recorded at eps_a = 0."""
+
+    def __init__(self, initial, keys=(), strain=(), step=()):
+        self.initial = np.sort(np.asarray(initial, dtype=np.int64))
+        self.keys = np.asarray(keys, dtype=np.int64)
+        self.strain = np.asarray(strain, dtype=np.float64)
+        self.step = np.asarray(step, dtype=np.int64)
+
+    def update(self, intact, eps_axial, step):
+        """``intact``: the keys of the intact cements now (``intact_cements``)."""
+        gone = np.setdiff1d(self.initial, intact, assume_unique=True)
+        new = np.setdiff1d(gone, self.keys)
+        if len(new):
+            self.keys = np.concatenate([self.keys, new])
+            self.strain = np.concatenate([self.strain, np.full(len(new), float(eps_axial))])
+            self.step = np.concatenate([self.step, np.full(len(new), int(step), dtype=np.int64)])
+
+    def per_grain(self, gid):
+        """Broken cements per grain of the sorted gids ``gid`` [n] (int64 [n])."""
+        ends = key_pairs(self.keys).ravel()
+        return np.bincount(np.searchsorted(gid, ends), minlength=len(gid)).astype(np.int64)
+
+    def state(self):
+        """Arrays for a checkpoint's series (``from_state`` reads them back)."""
+        return {"initial": self.initial, "keys": self.keys, "strain": self.strain, "step": self.step}
+
+    @classmethod
+    def from_state(cls, st):
+        return cls(st["initial"], st["keys"], st["strain"], st["step"])
+
+
+def cement_damage(rows, record=None):
+    """The damage of one cemented loading (``rows``: its series): cements at the start, broken at
+    the end, the broken fraction at the peak (``peak_index``) and at the end, and from the
+    ``record`` the axial strains by which 10 % and 50 % of the finally broken had broken."""
+    n0 = int(rows[0]["cements_intact"] + rows[0]["cements_broken"])
+    k = peak_index(rows)
+    out = {"cements_at_start": n0, "broken_at_end": int(rows[-1]["cements_broken"]),
+           "broken_fraction_at_peak": float(rows[k]["broken_fraction"]), "strain_at_peak": float(rows[k]["eps_axial"]),
+           "broken_fraction_at_end": float(rows[-1]["broken_fraction"])}
+    if record is not None and len(record.strain):
+        s = np.sort(record.strain)
+        out["strain_10_percent_broken"] = float(s[int(0.1 * (len(s) - 1))])
+        out["strain_half_broken"] = float(s[int(0.5 * (len(s) - 1))])
+    return out
+
+
+def band_share(points, band, d_mean):
+    """Fraction of ``points`` [m, 2] [m] within half the band's width (``width_d`` mean diameters
+    ``d_mean`` [m]) of the band's centre line (``centre``, unit ``direction``)."""
+    if len(points) == 0:
+        return 0.0
+    c, d = np.asarray(band["centre"], dtype=float), np.asarray(band["direction"], dtype=float)
+    r = np.asarray(points, dtype=float) - c
+    dist = np.abs(r[:, 0] * d[1] - r[:, 1] * d[0])
+    return float(np.mean(dist <= 0.5 * band["width_d"] * d_mean))
 
 
 # -- localisation ----------------------------------------------------------------------------
@@ -510,4 +594,5 @@ def window_field(ref, cur, platen_gids, d_mean, fraction=0.1):
 
 
 __all__ = ["SCHEMA", "COLUMNS", "UNITS", "INT_COLUMNS", "DESCRIPTION", "prepare", "open_sample", "install",
-           "start_loading", "sample", "Sampler", "angles", "snapshot", "window_field", "StepLimit"]
+           "start_loading", "sample", "Sampler", "angles", "peak_index", "intact_cements", "CementRecord",
+           "cement_damage", "band_share", "snapshot", "window_field", "StepLimit"]

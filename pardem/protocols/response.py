@@ -44,6 +44,15 @@ Protocol (any number of ranks; every step is collective):
 7. **Static response.** The damping is switched on again and the packing relaxes to the
    equilibrium criteria of step 4.
 
+Restart (the driver's ``--restart``, ``--steps``): the stage (preparation, reference, dynamic,
+static), where its relaxation started, the wave speed, the load and the next dynamic snapshot are
+a JSON state (``new_state``); the rows, the dead loads of a free top and the clamps' last
+reactions (``layer_state``), the gathered reference state and the dynamic responses so far
+(``response_arrays``) go into the checkpoint's ``/series``; ``restore_layer`` puts the fixes back
+in the uninterrupted run's order without re-applying them to the restored forces, so the run
+continues bit for bit on the same ranks. The replicated and opened case continues the step count
+and clock of the preparation (``engine.granular.continue_clock``).
+
 Measures (``pardem.physics.response``): per grain the change of the Love-Weber moment
 ``dM_i`` [N m] from the reference state (reference arms, change of the contact forces; its module
 docstring derives the force balance), binned in horizontal layers of height
@@ -59,6 +68,7 @@ packing's height below the load on a rigid base (``pardem.physics.flamant.layer_
 Fourier series, 2D Poisson ratio ``comparison.poisson``). The bottom row, a rigid or fixed top row
 and the loaded grain are left out of the bins.
 """
+import json
 import math
 import time
 
@@ -75,7 +85,7 @@ from pardem.physics import response as rsp
 from pardem.physics.contact_frame import pair_geometry
 from pardem.protocols import deck_checks as dc
 from pardem.protocols import isotropic as iso
-from pardem.protocols.granular_output import CHECKPOINT_SECTION, run_section
+from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit, run_section
 
 
 def _copies_value(name, v):
@@ -348,6 +358,9 @@ class Layer:
         # the grains that move under the contacts and loads alone: binned, and candidates for the load
         self.binned = np.sort(np.concatenate([free, top])) if isinstance(top_fix, DeadLoad) else free
         self.force = 0.0
+        self.damping = 0.0
+        self.ref = None          # rank 0: the reference state (``gather_state``), once measured
+        self.records = None      # rank 0: the dynamic responses measured so far (list of dicts)
 
     @property
     def sim(self):
@@ -369,7 +382,10 @@ class Layer:
 
 
 def make_layer(comm, case, deck, progress=None):
-    """Steps 2 and 3: replicate, open y, make the rows, friction on. Returns a ``Layer``."""
+    """Steps 2 and 3: replicate, open y, make the rows, friction on. Returns a ``Layer``; its case
+    continues the step count and clock of ``case`` (the steps, series and checkpoints of a run
+    count from its start)."""
+    step, clock = case.sim.step_count, case.sim.time
     k = deck["replicate"]["copies"]
     if k != [1, 1]:
         case = replicate(comm, case, k)
@@ -395,20 +411,160 @@ def make_layer(comm, case, deck, progress=None):
         raise ValueError("boundary.row_thickness leaves a row or the free grains empty")
     mat = deck["material"]
     granular.set_contact_params(new, iso.contact_params(mat, deck["load"]["friction"], 1.0))
-    bottom_fix = fx.Clamp(bottom, dofs="xyz", rotations="xyz")
-    kind = deck["boundary"]["top"]
-    top_fix = (DeadLoad(top) if kind == "free" else RigidRow(top) if kind == "rigid"
-               else fx.Clamp(top, dofs="xyz", rotations="xyz"))
-    fx.add(sim, bottom_fix, top_fix)
-    if kind == "free":
-        # pistons: x and the rotation held, y free under the dead load (without this the surface
-        # grains, which have no stiffness against rolling off, flowed by a diameter)
-        fx.add(sim, fx.Clamp(top, dofs="x", rotations="xyz"))
+    # the forces of the opened state at the run's step; the fixes added below act on them at once
+    granular.continue_clock(sim, step, clock)
     geometry = {"lo": lo.tolist(), "length": L.tolist(), "row_thickness": row,
                 "n_grains": int(len(gid)), "n_bottom": int(len(bottom)), "n_top": int(len(top)),
                 "n_free": int(len(free)), "mean_diameter": float(2.0 * r.mean()),
                 "thickness": float(cell.thickness), "y": y, "radius": r}
+    bottom_fix, top_fix, extra = _row_fixes(deck, bottom, top)
+    fx.add(sim, bottom_fix, top_fix, *extra)
     return Layer(new, bottom, top, free, top_fix, bottom_fix, geometry)
+
+
+def _row_fixes(deck, bottom, top):
+    """``(bottom clamp, top fix, [extra fixes])`` of the rows (module docstring, step 3)."""
+    bottom_fix = fx.Clamp(bottom, dofs="xyz", rotations="xyz")
+    kind = deck["boundary"]["top"]
+    top_fix = (DeadLoad(top) if kind == "free" else RigidRow(top) if kind == "rigid"
+               else fx.Clamp(top, dofs="xyz", rotations="xyz"))
+    # pistons: x and the rotation held, y free under the dead load (without this the surface
+    # grains, which have no stiffness against rolling off, flowed by a diameter)
+    extra = [fx.Clamp(top, dofs="x", rotations="xyz")] if kind == "free" else []
+    return bottom_fix, top_fix, extra
+
+
+def _insert(sim, *fixes):
+    """``fixes.add`` without applying the fixes to the current forces: a restored state's forces
+    already hold them (the checkpoint stores the forces after the fixes)."""
+    for fix in fixes:
+        stage = getattr(fix, "stage", fx.LOAD)
+        at = len(sim.fixes)
+        while at > 0 and getattr(sim.fixes[at - 1], "stage", fx.LOAD) > stage:
+            at -= 1
+        sim.fixes.insert(at, fix)
+
+
+# ---------------------------------------------------------------------------------------------
+# restart: the layer's and the response's state in a checkpoint
+
+def layer_state(layer):
+    """``(state, arrays)`` of the layer for a checkpoint: ``state`` JSON-able (geometry scalars,
+    top row kind and its load, the clamps' reactions of every rank, the load), ``arrays`` {name:
+    1D array} (row gids, the dead loads; HDF5 attributes are too small for them). Collective: the
+    clamps' reactions (each rank's sum over its clamped grains) are gathered."""
+    comm = layer.sim.comm
+    clamps = [f for f in (layer.bottom_fix, layer.top_fix) if isinstance(f, fx.Clamp)]
+    mine = [[f.reaction.tolist(), f.reaction_torque.tolist()] for f in clamps]
+    st = {"geometry": {k: v for k, v in layer.geometry.items() if k not in ("y", "radius")},
+          "reactions": comm.allgather(mine), "loaded_gid": layer.loaded_gid, "force": layer.force,
+          "rigid": None}
+    arrays = {"layer_bottom": np.asarray(layer.bottom, np.int64), "layer_top": np.asarray(layer.top, np.int64)}
+    t = layer.top_fix
+    if isinstance(t, DeadLoad):
+        arrays["layer_dead_force"] = np.asarray(t.force, np.float64).ravel()
+        arrays["layer_dead_torque"] = np.asarray(t.torque, np.float64).ravel()
+    elif isinstance(t, RigidRow):
+        st["rigid"] = {"applied": t.applied, "force": t.force}
+    return st, arrays
+
+
+def restore_layer(case, deck, st, series):
+    """The ``Layer`` of a checkpoint (``layer_state`` outputs; ``series`` the checkpoint's
+    ``/series``) on the restored ``case``: its rows' fixes and the load put back in the order of
+    the uninterrupted run, with their state, so that the run continues bit for bit."""
+    sim = case.sim
+    bottom = np.asarray(series["layer_bottom"], np.int64)
+    top = np.asarray(series["layer_top"], np.int64)
+    g = dict(st["geometry"])
+    free = np.setdiff1d(np.arange(g["n_grains"], dtype=np.int64), np.concatenate([bottom, top]))
+    bottom_fix, top_fix, extra = _row_fixes(deck, bottom, top)
+    if isinstance(top_fix, DeadLoad):
+        top_fix.force = np.asarray(series["layer_dead_force"], np.float64).reshape(-1, 3).copy()
+        top_fix.torque = np.asarray(series["layer_dead_torque"], np.float64).reshape(-1, 3).copy()
+    elif isinstance(top_fix, RigidRow):
+        top_fix.applied, top_fix.force = float(st["rigid"]["applied"]), float(st["rigid"]["force"])
+    clamps = [f for f in (bottom_fix, top_fix) if isinstance(f, fx.Clamp)]
+    per_rank = st["reactions"]
+    if len(per_rank) == sim.comm.size:
+        mine = per_rank[sim.comm.rank]
+    else:   # another rank count: rank 0 holds the sums (only their global sum is read)
+        mine = [[np.sum([p[k][0] for p in per_rank], axis=0), np.sum([p[k][1] for p in per_rank], axis=0)]
+                if sim.comm.is_root else [np.zeros(3), np.zeros(3)] for k in range(len(clamps))]
+    for f, (force, torque) in zip(clamps, mine):
+        f.reaction[:] = force
+        f.reaction_torque[:] = torque
+    _insert(sim, bottom_fix, top_fix, *extra)
+    layer = Layer(case, bottom, top, free, top_fix, bottom_fix, g)
+    if st["loaded_gid"] is not None:
+        layer.loaded_gid = int(st["loaded_gid"])
+        layer.load = fx.ExternalForce([layer.loaded_gid], (0.0, -float(st["force"]), 0.0))
+        layer.force = float(st["force"])
+        _insert(sim, layer.load)
+    return layer
+
+
+_REF_CONTACTS = (("gid_i", np.int64, 1), ("gid_j", np.int64, 1), ("normal", np.float64, 3),
+                 ("arm_i", np.float64, 1), ("arm_j", np.float64, 1), ("force", np.float64, 3))
+
+
+def response_arrays(layer):
+    """Rank 0's {name: 1D array} of the reference state (``gather_state``) and the dynamic records
+    so far (JSON text as bytes), for a checkpoint; {} elsewhere or before the reference."""
+    out = {}
+    if layer.ref is not None:
+        for k, _, _ in _REF_CONTACTS:
+            out[f"ref_{k}"] = np.asarray(layer.ref["contacts"][k]).ravel()
+        out["ref_x"] = layer.ref["x"].ravel()
+        out["ref_radius"] = layer.ref["radius"]
+    if layer.records is not None:
+        out["records_json"] = np.frombuffer(json.dumps(layer.records).encode(), dtype=np.uint8)
+    return out
+
+
+def restore_response(layer, series):
+    """Put back rank 0's reference state and dynamic records (``response_arrays``) into ``layer``."""
+    if not layer.sim.comm.is_root:
+        return
+    if "ref_x" in series:
+        c = {k: np.asarray(series[f"ref_{k}"], dtype=t).reshape((-1, w) if w > 1 else (-1,))
+             for k, t, w in _REF_CONTACTS}
+        layer.ref = {"contacts": c, "x": np.asarray(series["ref_x"], np.float64).reshape(-1, 3),
+                     "radius": np.asarray(series["ref_radius"], np.float64)}
+    if "records_json" in series:
+        layer.records = json.loads(bytes(np.asarray(series["records_json"], np.uint8)).decode())
+
+
+class StageClock:
+    """Wall seconds and steps per stage of a run, kept across restarts (``state()`` is JSON-able
+    and includes the current stage so far; a restart continues from it)."""
+
+    def __init__(self, state=None):
+        st = state or {}
+        self.seconds = dict(st.get("seconds", {}))
+        self.steps = dict(st.get("steps", {}))
+        self.current = None      # (name, t0, step0)
+
+    def enter(self, name, step):
+        """Start (or continue) stage ``name`` at ``step``; the previous one ends here."""
+        self.close(step)
+        self.current = (name, time.perf_counter(), int(step))
+
+    def close(self, step):
+        if self.current is not None:
+            name, t0, s0 = self.current
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t0
+            self.steps[name] = self.steps.get(name, 0) + int(step) - s0
+            self.current = None
+
+    def state(self, step):
+        """``{"seconds": {stage: s}, "steps": {stage: n}}`` up to now (the current stage included)."""
+        sec, steps = dict(self.seconds), dict(self.steps)
+        if self.current is not None:
+            name, t0, s0 = self.current
+            sec[name] = sec.get(name, 0.0) + time.perf_counter() - t0
+            steps[name] = steps.get(name, 0) + int(step) - s0
+        return {"seconds": sec, "steps": steps}
 
 
 def wave_speed(layer):
@@ -435,19 +591,22 @@ class _Run:
         self.stop = stop
 
     def before_run(self, sim):
-        pass
+        if self.stop is not None and sim.step_count >= self.stop:
+            raise StepLimit(f"stopped at step {sim.step_count} (--steps {self.stop})")
 
 
-def relax_layer(layer, deck, label, progress=None, operations=(), on_check=None):
-    """Relax with the damping of ``layer.damping`` until the ``[relax]`` criteria hold; returns
-    ``(balance, converged, steps)``."""
+def relax_layer(layer, deck, label, progress=None, operations=(), on_check=None, start=None, stop=None):
+    """Relax with the damping of ``layer.damping`` until the ``[relax]`` criteria hold, counting
+    from step ``start`` (default now: a restarted relaxation continues from its start); returns
+    ``(balance, converged, steps)``. ``stop``: raise ``StepLimit`` at the first check at or after
+    this step."""
     r = deck["relax"]
     sim = layer.sim
     sim.viscous_damping = layer.damping
     tol = {"kinetic_tolerance": r["kinetic_tolerance"], "force_tolerance": r["force_tolerance"],
            "pressure_tolerance": 1.0}
     return iso.relax(sim, tol, r["check_every"], r["max_steps"], progress=progress, label=label,
-                     run=_Run(operations, on_check))
+                     start=start, run=_Run(operations, on_check, stop))
 
 
 def loaded_grain(layer):
@@ -567,80 +726,123 @@ def per_grain_stress(dM_yy, radius, thickness, solid_fraction):
 # ---------------------------------------------------------------------------------------------
 # the whole protocol
 
-def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=None):
+def new_state():
+    """The JSON-able state of ``respond`` before it starts (stage ``reference``)."""
+    return {"stage": "reference", "start": None, "wave": None, "reference": None, "top0": None,
+            "bottom0": None, "force": None, "loaded_gid": None, "loaded_position": None, "dyn_start": None,
+            "t_load": None, "dyn_index": 0, "static": None}
+
+
+def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=None, state=None, stop=None,
+            clock=None):
     """Steps 4 to 7 on a ``Layer``; returns the results dict on rank 0 (None elsewhere).
     ``on_row(row)``: every relaxation check (``SERIES_COLUMNS``); ``on_record(label, state,
     result)``: every recorded response (dynamic snapshots and the static one), rank 0 gets the
-    gathered state and the measure. Collective."""
+    gathered state and the measure. Collective.
+
+    Restart: ``state`` (``new_state()``, updated in place: the stage ``reference``, ``dynamic``,
+    ``static`` or ``done``, where its relaxation started, the wave speed, the load, the next
+    dynamic snapshot) with ``layer.ref`` and ``layer.records`` put back (``restore_response``)
+    continues the response where a checkpoint left it, bit for bit on the same ranks. ``stop``:
+    ``StepLimit`` at the first check (or snapshot run) at or after this step. ``clock``: a
+    ``StageClock`` timing the stages."""
     sim = layer.sim
     t0 = time.perf_counter()
-    c, H = wave_speed(layer)
-    transit = H / c
-    d = deck["relax"]["damping"]
-    layer.damping = math.pi * c / H if d == "auto" else float(d)
-    stage = {"k": 0}
+    st = new_state() if state is None else state
+    if st["wave"] is None:
+        c, H = wave_speed(layer)
+        d = deck["relax"]["damping"]
+        st["wave"] = {"c": c, "H": H, "transit": H / c, "damping": math.pi * c / H if d == "auto" else float(d)}
+    c, H, transit = st["wave"]["c"], st["wave"]["H"], st["wave"]["transit"]
+    layer.damping = st["wave"]["damping"]
+    if layer.records is None:
+        layer.records = []
 
     def check(sim_, b):
         top, bottom = layer.reactions()
-        row = {"step": sim_.step_count, "time": sim_.time, "stage": stage["k"], "unbalanced": b["unbalanced"],
-               "kinetic": b["kinetic"], "top_force": top, "bottom_force": bottom}
+        row = {"step": sim_.step_count, "time": sim_.time, "stage": STAGES.index(st["stage"]),
+               "unbalanced": b["unbalanced"], "kinetic": b["kinetic"], "top_force": top, "bottom_force": bottom}
         if on_row is not None:
             on_row(row)
 
-    b, ok, steps = relax_layer(layer, deck, "reference", progress, operations, check)
-    ref_info = {"converged": ok, "steps": steps, "unbalanced": b["unbalanced"], "kinetic": b["kinetic"],
-                "pressure": b["pressure"], "mean_contact_force": b["mean_contact_force"],
-                "n_contacts": b["n_contacts"]}
-    top0, bottom0 = layer.reactions()
-    ref = gather_state(sim)
-    F = deck["load"]["fraction"] * b["mean_contact_force"]
-    apply_load(layer, F)
-    loaded = None
-    if sim.comm.is_root:
-        loaded = ref["x"][layer.loaded_gid].tolist()
-    if progress is not None:
-        progress.say(f"reference: {steps} steps, unbalanced {b['unbalanced']:.3g}; load F = {F:.4g} N on grain "
-                     f"{layer.loaded_gid}; c = {c:.4g} m/s, H = {H:.4g} m, damping {layer.damping:.4g} 1/s")
-    records = []
-    # dynamic (undamped) response
-    stage["k"] = 1
-    sim.viscous_damping = 0.0
-    start, t_load = sim.step_count, sim.time
-    for tau in deck["dynamic"]["times"]:
-        target = start + int(round(tau * transit / sim.dt))
-        if target > sim.step_count:
-            sim.run(target - sim.step_count, list(operations))
-        cur = gather_state(sim)
-        res = measure(layer, ref, cur, deck)
-        if res is not None:
-            res.update(time_after_load=sim.time - t_load, time_over_transit=tau, step=sim.step_count)
-        records.append(res)
-        if on_record is not None:
-            on_record(f"dynamic t = {tau:g} H/c", cur, res)
-    # static response
-    stage["k"] = 2
-    b2, ok2, steps2 = relax_layer(layer, deck, "static", progress, operations, check)
+    def enter(name):
+        if clock is not None:
+            clock.enter(name, sim.step_count)
+
+    if st["stage"] == "reference":
+        enter("reference")
+        if st["start"] is None:
+            st["start"] = sim.step_count
+        b, ok, steps = relax_layer(layer, deck, "reference", progress, operations, check, start=st["start"],
+                                   stop=stop)
+        st["reference"] = {"converged": ok, "steps": steps, "unbalanced": b["unbalanced"], "kinetic": b["kinetic"],
+                           "pressure": b["pressure"], "mean_contact_force": b["mean_contact_force"],
+                           "n_contacts": b["n_contacts"]}
+        st["top0"], st["bottom0"] = layer.reactions()
+        layer.ref = gather_state(sim)
+        F = deck["load"]["fraction"] * b["mean_contact_force"]
+        apply_load(layer, F)
+        st["force"], st["loaded_gid"] = F, layer.loaded_gid
+        st["loaded_position"] = sim.comm.bcast(layer.ref["x"][layer.loaded_gid].tolist() if sim.comm.is_root
+                                               else None)
+        if progress is not None:
+            progress.say(f"reference: {steps} steps, unbalanced {b['unbalanced']:.3g}; load F = {F:.4g} N on grain "
+                         f"{layer.loaded_gid}; c = {c:.4g} m/s, H = {H:.4g} m, damping {layer.damping:.4g} 1/s")
+        st["dyn_start"], st["t_load"], st["dyn_index"] = sim.step_count, sim.time, 0
+        st["stage"] = "dynamic"
+    if st["stage"] == "dynamic":
+        # dynamic (undamped) response
+        enter("dynamic")
+        sim.viscous_damping = 0.0
+        times = deck["dynamic"]["times"]
+        while st["dyn_index"] < len(times):
+            tau = times[st["dyn_index"]]
+            target = st["dyn_start"] + int(round(tau * transit / sim.dt))
+            while sim.step_count < target:
+                if stop is not None and sim.step_count >= stop:
+                    raise StepLimit(f"stopped at step {sim.step_count} (--steps {stop}), dynamic response")
+                end = target if stop is None else min(target, stop)
+                sim.run(end - sim.step_count, list(operations))
+            cur = gather_state(sim)
+            res = measure(layer, layer.ref, cur, deck)
+            if res is not None:
+                res.update(time_after_load=sim.time - st["t_load"], time_over_transit=tau, step=sim.step_count)
+            if on_record is not None:
+                on_record(f"dynamic t = {tau:g} H/c", cur, res)
+            if res is not None:
+                res.pop("per_grain", None)
+                layer.records.append(res)
+            st["dyn_index"] += 1
+        st["stage"], st["start"] = "static", sim.step_count
+    if st["stage"] == "static":
+        # static response
+        enter("static")
+        b2, ok2, steps2 = relax_layer(layer, deck, "static", progress, operations, check, start=st["start"],
+                                      stop=stop)
+        st["static"] = {"converged": ok2, "steps": steps2, "unbalanced": b2["unbalanced"], "kinetic": b2["kinetic"]}
+        st["stage"] = "done"
+    if clock is not None:
+        clock.close(sim.step_count)
     top1, bottom1 = layer.reactions()
     cur = gather_state(sim)
-    static = measure(layer, ref, cur, deck)
+    static = measure(layer, layer.ref, cur, deck)
     if on_record is not None:
         on_record("static", cur, static)
     if not sim.comm.is_root:
         return None
-    for r in records:
-        r.pop("per_grain", None)
+    F = st["force"]
     per_grain = static.pop("per_grain")
-    return {"force": F, "loaded_gid": layer.loaded_gid, "loaded_position": loaded,
+    return {"force": F, "loaded_gid": layer.loaded_gid, "loaded_position": st["loaded_position"],
             "wave_speed": c, "height": H, "transit_time": transit, "damping": layer.damping,
-            "reference": ref_info,
-            "static": dict(static, converged=ok2, steps=steps2, unbalanced=b2["unbalanced"],
-                           kinetic=b2["kinetic"]),
-            "dynamic": records,
-            "reactions": {"top_share": -(top1 - top0) / F, "bottom_share": -(bottom1 - bottom0) / F,
-                          "top_reference": top0, "bottom_reference": bottom0},
+            "reference": st["reference"],
+            "static": dict(static, **st["static"]),
+            "dynamic": list(layer.records),
+            "reactions": {"top_share": -(top1 - st["top0"]) / F, "bottom_share": -(bottom1 - st["bottom0"]) / F,
+                          "top_reference": st["top0"], "bottom_reference": st["bottom0"]},
             "geometry": {k: v for k, v in layer.geometry.items() if k not in ("y", "radius")},
             "seconds": time.perf_counter() - t0, "_per_grain": per_grain}
 
 
 __all__ = ["SCHEMA", "RigidRow", "Layer", "prepared", "make_layer", "respond", "measure", "gather_state",
-           "contact_table", "apply_load", "relax_layer", "wave_speed", "iso_deck", "SERIES_COLUMNS"]
+           "contact_table", "apply_load", "relax_layer", "wave_speed", "iso_deck", "SERIES_COLUMNS", "new_state",
+           "layer_state", "restore_layer", "response_arrays", "restore_response", "StageClock"]
