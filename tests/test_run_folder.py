@@ -81,6 +81,27 @@ def test_a_folder_with_another_runs_results_is_refused_unless_overwrite(tmp_path
     assert sorted(os.listdir(out)) == sorted([run_folder.LOCK_NAME, "my_notes.txt", "deck.toml"])
 
 
+def test_the_2d_drivers_results_are_results_too(tmp_path):
+    """The biaxial and response drivers' files (their --help lists them) and numbered maps count as
+    a run's results: refused without --overwrite, removed with it; look-alikes a user may keep
+    (another extension, no numbers) stay."""
+    out = tmp_path / "run"
+    out.mkdir()
+    ours = ["biaxial.csv", "biaxial.json", "localisation-0-2.png", "localisation-1-0.vtu", "cements-0.png",
+            "cements-3.vtu", "response.json", "response.h5"]
+    for name in ours:
+        (out / name).write_text("old")
+    (out / "response_vtk").mkdir()
+    theirs = ["localisation.png", "cements-notes.txt", "biaxial.ods"]
+    for name in theirs:
+        (out / name).write_text("keep")
+    message = refused(str(out))
+    assert all(name in message for name in ours + ["response_vtk"]) and "--overwrite" in message
+    run_folder.release_all()
+    run_folder.claim(FakeComm(), str(out), overwrite=True)
+    assert sorted(os.listdir(out)) == sorted([run_folder.LOCK_NAME] + theirs)
+
+
 def test_an_empty_or_unrelated_folder_is_accepted(tmp_path):
     (tmp_path / "notes.txt").write_text("x")
     run_folder.claim(FakeComm(), str(tmp_path))

@@ -3,12 +3,13 @@
 ``claim`` is collective: rank 0 checks the path, creates the folder, takes an exclusive ``fcntl``
 lock on ``<folder>/.pardem.lock`` (kept until the process ends, so a second concurrent run into
 the same folder is refused), and refuses a folder that holds another run's results unless
-``overwrite``, which first removes exactly the entries of ``RESULTS`` found there (nothing else:
+``overwrite``, which first removes exactly the entries of ``RESULTS`` (and ``RESULT_PATTERNS``) found there (nothing else:
 a user's own files in the folder stay). Every rank gets the same outcome: the absolute path, or
 the same ``DeckError`` (a bad path, exit 2) or ``OutputError`` (the file system refused, exit 4).
 """
 import errno
 import fcntl
+import fnmatch
 import os
 import shutil
 
@@ -18,9 +19,13 @@ from pardem.engine.errors import OutputError
 LOCK_NAME = ".pardem.lock"
 # every file or folder a pardem driver writes into its output folder (a run's results)
 RESULTS = ("summary.json", "series.csv", "series.h5", "series", "checkpoints", "paraview", "records",
-           "force_distribution.png", "compress_calibrated.toml",
-           *(f"{name}.{ext}" for name in ("isotropic", "triaxial", "calibration", "anisotropy")
+           "force_distribution.png", "compress_calibrated.toml", "study.json", "mixture_study.toml",
+           "mixture_structure.png", "response_vtk",
+           *(f"{name}.{ext}" for name in ("isotropic", "triaxial", "calibration", "calibration_history",
+                                          "anisotropy", "biaxial", "response", "mixture")
              for ext in ("json", "csv", "h5", "png")))
+# the numbered results (fnmatch patterns): the biaxial driver's maps per pressure and window
+RESULT_PATTERNS = ("localisation-*-*.png", "localisation-*-*.vtu", "cements-*.png", "cements-*.vtu")
 # pseudo-filesystems and devices: never an output folder
 FORBIDDEN_ROOTS = ("/proc", "/sys", "/dev")
 OUTPUT_ERRNOS = (errno.ENOSPC, errno.EACCES, errno.EROFS, errno.EDQUOT, errno.EPERM)
@@ -67,8 +72,11 @@ def _limit(name, default):
 
 
 def results_in(path):
-    """The entries of ``RESULTS`` present in folder ``path`` (sorted)."""
-    return sorted(name for name in RESULTS if os.path.lexists(os.path.join(path, name)))
+    """The entries of ``RESULTS`` and ``RESULT_PATTERNS`` present in folder ``path`` (sorted)."""
+    found = {name for name in RESULTS if os.path.lexists(os.path.join(path, name))}
+    found.update(name for name in os.listdir(path)
+                 if any(fnmatch.fnmatchcase(name, pat) for pat in RESULT_PATTERNS))
+    return sorted(found)
 
 
 def _claim_here(out, overwrite, restart):
