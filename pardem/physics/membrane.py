@@ -119,6 +119,9 @@ def _walk(xs, ys, low, high, r_m, round_tips, attempts):
     near = np.zeros(n, dtype=np.int8)       # start platen grains: 1 a grain off the platen within r_m, -1 none
     used = np.zeros(n, dtype=np.bool_)
     links = np.empty(n + 1, dtype=np.int64)
+    cand_q = np.empty(n, dtype=np.int64)   # the unused neighbours within r_m of the current grain
+    cand_a = np.empty(n)                   # their angles
+    cand_d = np.empty(n)                   # their squared distances [m^2]
     k = 0
     for _ in range(attempts):
         # the start: the outermost platen grain not left out (largest x, then y, then index) that
@@ -161,7 +164,8 @@ def _walk(xs, ys, low, high, r_m, round_tips, attempts):
             sx, sy = dy, -dx                # outward: the segment direction turned clockwise
             cx, cy = _cell_of(xs[p], ys[p], x0, y0, h, nx, ny)
             # the smallest angle, then among the angles within _TIE of it the furthest, then the
-            # lowest index (two passes: the choice does not depend on the order of the cells)
+            # lowest index (chosen from the gathered neighbours: independent of the cells' order)
+            m = 0
             best_a = np.inf
             for ix in range(max(cx - 1, 0), min(cx + 2, nx)):
                 for iy in range(max(cy - 1, 0), min(cy + 2, ny)):
@@ -175,25 +179,17 @@ def _walk(xs, ys, low, high, r_m, round_tips, attempts):
                         if d2 > r2 or d2 == 0.0:
                             continue
                         a = _angle(xs, ys, p, q, sx, sy, round_tips)
+                        cand_q[m], cand_a[m], cand_d[m] = q, a, d2
+                        m += 1
                         if a < best_a:
                             best_a = a
             if best_a == np.inf:
                 break
             nxt, best_d = -1, -1.0
-            for ix in range(max(cx - 1, 0), min(cx + 2, nx)):
-                for iy in range(max(cy - 1, 0), min(cy + 2, ny)):
-                    c = ix * ny + iy
-                    for t in range(first[c], first[c + 1]):
-                        q = items[t]
-                        if used[q]:
-                            continue
-                        vx, vy = xs[q] - xs[p], ys[q] - ys[p]
-                        d2 = vx * vx + vy * vy
-                        if d2 > r2 or d2 == 0.0:
-                            continue
-                        a = _angle(xs, ys, p, q, sx, sy, round_tips)
-                        if a <= best_a + _TIE and (d2 > best_d or (d2 == best_d and q < nxt)):
-                            nxt, best_d = q, d2
+            for u in range(m):
+                q, d2 = cand_q[u], cand_d[u]
+                if cand_a[u] <= best_a + _TIE and (d2 > best_d or (d2 == best_d and q < nxt)):
+                    nxt, best_d = q, d2
             used[nxt] = True
             links[k] = nxt
             k += 1
