@@ -124,3 +124,26 @@ def test_rank_without_bonds_keeps_the_damping_and_equals_one_rank(tmp_path):
     loaded = load("loaded1.npz")
     for k in one:
         assert np.array_equal(one[k], loaded[k]), k
+
+
+@pytest.mark.mpi
+@pytest.mark.skipif(MPIEXEC is None, reason="no mpiexec")
+def test_a_checkpoint_refuses_ranks_that_disagree_on_the_bond_switches(tmp_path):
+    """``snapshot.system_attrs`` stores the switches once for all ranks; if a builder ever left one
+    rank with other switches, the checkpoint would restore the wrong physics, so writing refuses
+    on every rank (no rank left waiting in the collective write)."""
+    _run(tmp_path, "disagree", """
+        import sys
+        comm = pardem.Communicator()
+        out = sys.argv[1]
+        sim = system(comm)
+        if comm.rank == 0:
+            sim.bonds.damped = False               # what the old builder did to a rank without bonds
+        try:
+            pardem.save(sim, out + "/bad.h5")
+        except ValueError as err:
+            assert "disagree on the bond switches" in str(err), err
+            open(out + f"/refused{comm.rank}", "w").close()
+    """, 2)
+    assert (tmp_path / "refused0").exists() and (tmp_path / "refused1").exists()
+    assert not (tmp_path / "bad.h5").exists()

@@ -112,7 +112,7 @@ def add(sim, *fixes):
     return sim.fixes
 
 
-def _check_order(sim, load):
+def check_order(sim, load):
     """ValueError if a constraint comes before the load ``load`` in ``sim.fixes``."""
     for fix in sim.fixes:
         if fix is load:
@@ -179,7 +179,7 @@ class _Load:
     def _check_order(self, sim):
         key = tuple(map(id, sim.fixes))
         if self._order_checked != key:
-            _check_order(sim, self)
+            check_order(sim, self)
             self._order_checked = key
 
 

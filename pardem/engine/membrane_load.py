@@ -7,7 +7,7 @@ top-platen grain) and adds the confining pressure to its grains every force eval
 2D stress convention).
 
 Parallel: the chain grains may be owned by any rank. Each force evaluation every rank contributes
-the positions of the chain grains it owns (``Communicator.allgather``: a few hundred floats), so
+the positions of the chain grains it owns (``Communicator.allgatherv``: a few hundred floats), so
 every rank holds the whole chain, computes the same forces from the same bits and adds those of its
 owned grains: the load is the same on any number of ranks. The chains are rebuilt every
 ``rebuild_every`` steps, alternately from the bottom and from the top (``side_chain``: the walk of
@@ -35,7 +35,7 @@ grains were gathered).
 """
 import numpy as np
 
-from pardem.engine.fixes import LOAD, ElementSelection, _check_order
+from pardem.engine.fixes import LOAD, ElementSelection, check_order
 from pardem.physics import membrane
 
 SIDES = membrane.SIDES      # ("left", "right")
@@ -192,11 +192,11 @@ class MembraneLoad:
         """{side: [m, 2]} positions of the chains' grains (collective, the same on every rank)."""
         e = sim.elements
         rows, idx = self._selection.rows(e, sim.comm)
-        parts = sim.comm.allgather((idx, e.x[rows, :2].copy()))
-        total = len(self._selection.gids)
-        x = np.empty((total, 2))
-        for i, p in parts:
-            x[i] = p
+        # two allgatherv (no pickling): each rank's chain indices, then their positions
+        where = sim.comm.allgatherv(np.ascontiguousarray(idx, dtype=np.int64))
+        found = sim.comm.allgatherv(np.ascontiguousarray(e.x[rows, :2], dtype=np.float64))
+        x = np.empty((len(self._selection.gids), 2))
+        x[where] = found
         m = len(self.chains[SIDES[0]])
         return {SIDES[0]: x[:m], SIDES[1]: x[m:]}
 
@@ -205,7 +205,7 @@ class MembraneLoad:
     def post_force(self, sim):
         key = tuple(map(id, sim.fixes))
         if self._order_checked != key:
-            _check_order(sim, self)
+            check_order(sim, self)
             self._order_checked = key
         step = sim.step_count
         if self.chains is None or (self.rebuild_every and step % self.rebuild_every == 0

@@ -269,12 +269,19 @@ def system_attrs(sim):
         law = next(name for name, row in LAWS.items() if c.law is row)
     from pardem.engine.plane import plane_of
     plane = plane_of(sim)
+    switches = (sim.bonds if sim.bonds is not None else Bonds.empty()).flags()
+    # the switches are the same on every rank (builders give a rank without bonds the material's);
+    # a builder that broke this would save a checkpoint that restores the wrong physics
+    every = sim.comm.allgather(switches)
+    if any(s != switches for s in every):
+        raise ValueError(f"snapshot.write: the ranks disagree on the bond switches {every}; "
+                         "every rank's Bonds must carry the material's damped/breakable/densify_p0")
     return {"kind": "system", "dt": sim.dt,
             # the 2D mode (pardem.engine.plane): its plane constraint is part of the system
             "dimension": 2 if plane is not None else 3, "plane_z0": plane.z0 if plane is not None else 0.0, "max_speed": float(np.sqrt(sim.max_speed2)),
             "check_every": sim.check_every, "viscous_damping": sim.viscous_damping,
             "slab_axis": d.slabs.axis if d is not None else 0,
-            "bonds": (sim.bonds if sim.bonds is not None else Bonds.empty()).flags(),
+            "bonds": switches,
             "contacts": None if c is None else {"law": law, "params": _init_fields(c.params), "skin": c.skin,
                                                 "reach": c.cut},
             "walls": wall_attrs(p),
