@@ -68,8 +68,8 @@ def survivors(pids, grace=5.0):
 class Job:
     """An mpiexec job whose stdout lines are read by a thread (so the test can wait for one)."""
 
-    def __init__(self, args, ranks=2):
-        self.p = subprocess.Popen([MPIEXEC, "-n", str(ranks), sys.executable, *args], cwd=ROOT,
+    def __init__(self, args, ranks=2, launcher=(MPIEXEC,)):
+        self.p = subprocess.Popen([*launcher, "-n", str(ranks), sys.executable, *args], cwd=ROOT,
                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         self.lines, self.stdout = queue.Queue(), []
         self.stderr = ""
@@ -219,3 +219,53 @@ def _wait_for_handlers(job, end):
         assert job.p.poll() is None, job.p.stderr.read()
         time.sleep(0.1)
     raise AssertionError("the ranks never installed a SIGTERM handler")
+
+
+def slurm_up():
+    """A Slurm cluster answers and has a node up (``sinfo``): the srun tests need one."""
+    import shutil
+    if not (shutil.which("srun") and shutil.which("sinfo") and shutil.which("scancel")):
+        return False
+    try:
+        p = subprocess.run(["sinfo", "-h", "-o", "%a %T"], capture_output=True, text=True, timeout=20)
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+    return p.returncode == 0 and any(ln.split()[:1] == ["up"] and not ln.split()[1].startswith(("down", "drain"))
+                                     for ln in p.stdout.splitlines() if ln.split())
+
+
+@pytest.mark.skipif(not slurm_up(), reason="no Slurm cluster here (sinfo finds no node up)")
+@pytest.mark.parametrize("how", ["scancel", "scancel --signal=TERM", "scancel --signal=INT"])
+def test_scancel_under_srun_stops_every_rank_with_a_final_checkpoint(tmp_path, how):
+    """Under ``srun --mpi=pmi2`` (srun starts the ranks itself) Slurm delivers the signal to every
+    task: ``scancel`` (what the wall-time limit does, SIGTERM then SIGKILL after KillWait),
+    ``scancel --signal=...`` and ``#SBATCH --signal`` (a signal alone). The ranks stop at one
+    step, write the final checkpoint and the summary, and exit 128 + N themselves (no MPI_Abort,
+    which srun would report as "Killed", 137), before KillWait's SIGKILL."""
+    name = f"pardem-test-{os.getpid()}-{tmp_path.name}"[:60]
+    out = tmp_path / "run"
+    job = Job(["-m", "pardem.drivers.compress", *SMALL, "--out", str(out)],
+              launcher=("srun", "--mpi=pmi2", f"--job-name={name}", "--time=10"))
+    try:
+        job.wait_for("step ", timeout=300)
+        t0 = time.monotonic()
+        subprocess.run([*how.split(), f"--name={name}"], check=True, timeout=60)
+        job.finish(timeout=120)
+        seconds = time.monotonic() - t0
+    finally:
+        if job.p.poll() is None:
+            subprocess.run(["scancel", "--signal=KILL", f"--name={name}"], timeout=60)
+        job.kill()
+    signum = signal.SIGINT if how.endswith("INT") else signal.SIGTERM
+    assert job.p.returncode == 128 + signum, job.stderr
+    # Slurm's KillWait (30 s by default) would end the tasks with SIGKILL (137) after that
+    assert seconds < STOP_SECONDS, seconds
+    (line,) = stop_lines(job)
+    assert line.startswith(f"pardem: stopped by {signal.Signals(signum).name} at step "), line
+    assert "Traceback" not in job.stderr and "Killed" not in job.stderr, job.stderr
+    step = int(line.split(" at step ")[1].split(";")[0])
+    assert step > 0 and step % 50 == 0, line
+    ck = line.split("restart with --restart ")[1].strip()
+    assert os.path.isfile(ck) and f"{step:010d}" in ck, ck
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"]["signal"] in (signal.Signals(signum).name, int(signum)), summary

@@ -109,12 +109,14 @@ def run_driver(comm, run, args):
         if comm.size > 1:
             # every rank is here (Interrupted is raised on all at one step). mpiexec.mpich reported
             # a job whose ranks all exited 128 + N normally as exit 0 in about half of the tries
-            # after forwarding the signal; MPI_Abort(128 + N) always gave 128 + N
+            # after forwarding the signal; MPI_Abort(128 + N) always gave 128 + N. srun reports
+            # the ranks' own codes (and an abort as 137): there every rank exits normally
             watchdog.stop()
             comm.barrier()
-            if comm.is_root:
-                comm.abort(code)
-            time.sleep(30.0)     # rank 0's abort ends this rank
+            if not comm.started_by_srun():
+                if comm.is_root:
+                    comm.abort(code)
+                time.sleep(30.0)     # rank 0's abort ends this rank
         raise SystemExit(code)
     except InstabilityError as err:
         if comm.is_root:

@@ -3,6 +3,7 @@
 Everything above this layer calls these verbs and never mpi4py directly, so a run on one process
 without ``mpiexec`` works the same way (MPI singleton).
 """
+import os
 import sys
 import time
 import traceback
@@ -98,6 +99,16 @@ class Communicator:
         if self.size > 1:
             self.comm.Barrier()
 
+    def started_by_srun(self):
+        """Collective: True if Slurm's ``srun`` started every rank itself (one Slurm task per rank,
+        ``srun --mpi=pmi2`` or ``pmix``), False under ``mpiexec`` (also inside a Slurm job).
+
+        srun reports the ranks' own exit codes, so ranks that all stop together may simply exit;
+        under srun an ``MPI_Abort`` is reported as "Killed" (137), and in a step that Slurm is
+        already cancelling it does nothing until Slurm's SIGKILL (``KillWait``, 30 s)."""
+        mine = srun_task(self.rank, self.size)
+        return bool(self.comm.allreduce(mine, op=self._MPI.LAND)) if self.size > 1 else mine
+
     def abort(self, code=1):
         """End every rank of the job now (used when one rank fails and the others may be waiting).
 
@@ -110,17 +121,27 @@ class Communicator:
         self.comm.Abort(code)
 
 
+def srun_task(rank, size):
+    """This process is Slurm task ``rank`` of a step of ``size`` tasks with Slurm's own PMI, i.e.
+    srun started the MPI ranks (under mpiexec inside a Slurm job the tasks are hydra's proxies,
+    one per node, and the ranks see hydra's PMI without ``PMI_JOBID``)."""
+    env = os.environ
+    return (env.get("SLURM_PROCID") == str(rank) and env.get("SLURM_STEP_NUM_TASKS") == str(size)
+            and ("PMI_JOBID" in env or "PMIX_RANK" in env))
+
+
 def exit_now(code, rank=0):
     """End the job with ``code`` at once, from a signal handler every rank received (no Python
     clean-up, no exception raised). With MPI: ``MPI_Abort`` from rank 0 (the others follow after
     a moment if still alive); ``os._exit`` alone is not enough: mpiexec.mpich reported such a job,
     after forwarding the signal, as exit code 0 in 2 of 3 tries, and ``MPI_Finalize`` in a
     handler can wait for ever."""
-    import os
     from mpi4py import MPI
     sys.stdout.flush()
     sys.stderr.flush()
-    if MPI.Is_initialized() and not MPI.Is_finalized() and MPI.COMM_WORLD.Get_size() > 1:
+    size = MPI.COMM_WORLD.Get_size() if MPI.Is_initialized() and not MPI.Is_finalized() else 1
+    # srun and scancel signal every task, and srun reports the tasks' own exit codes: no abort
+    if size > 1 and not srun_task(rank, size):
         if rank != 0:
             time.sleep(2.0)
         MPI.COMM_WORLD.Abort(code)
