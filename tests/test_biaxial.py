@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from pardem.engine import granular
+from pardem.protocols import isotropic
 from pardem.engine.open_cell import open_axes
 from pardem.parallel.communicator import Communicator
 from pardem.physics import hertz_mindlin
@@ -391,6 +392,32 @@ def test_cemented_hexagonal_sample_breaks_cements_and_records_when():
     d = biaxial.cement_damage(rows, rec)
     assert d["cements_at_start"] == n0 and d["broken_at_end"] == broken[-1]
     assert d["broken_fraction_at_peak"] == rows[biaxial.peak_index(rows)]["broken_fraction"]
+
+
+def test_pair_stress_counts_the_cements_as_the_force_kernel_does():
+    """``contact_measures`` recomputes the Love-Weber sums from the pairs in NumPy (a second
+    computation): with no pair left out they equal the force kernel's own exact sums of the last
+    evaluation, on a cemented sample loaded until cements broke (intact and fading cements; the
+    compressed lattice keeps every cemented pair touching). Undamped contacts (restitution 1), so that the elastic forces
+    are the whole force; the tolerance is round-off (1e-10 of the largest sum: a few ulps per
+    term over ~600 terms). Without the cements (the Hertz-Mindlin forces alone) the sums differ
+    by far more, so the comparison can fail."""
+    from pardem.protocols import biaxial
+    rows, case, *_ = biaxial_hex(Communicator(), settle=200, steps=2000, every=100, cement=True,
+                                 loading={"strain_rate": 50.0, "strain": 1e-3, "restitution": 1.0})
+    sim = case.sim
+    assert rows[-1]["cements_broken"] > 0
+    cf = isotropic.contact_forces(sim, cement=True)
+    state = sim.contacts.history[:, hertz_mindlin.CEMENT_STATE]
+    assert np.count_nonzero(cf["intact"]) > 0 and np.count_nonzero(state < 0) > 0   # intact and fading
+    lw = biaxial.contact_measures(sim, np.zeros(0, np.int64))[0]
+    kernel = np.asarray(sim.contacts.global_sums(sim.comm)[0]).reshape(3, 3)[:2, :2]
+    tol = 1e-10 * np.abs(kernel).max()
+    assert np.abs(lw - kernel).max() <= tol, (lw, kernel)
+    plain = isotropic.contact_forces(sim)
+    d, F = plain["branch"], plain["force"]
+    lw0 = np.array([[np.sum(d[:, a] * F[:, b]) for b in range(2)] for a in range(2)])
+    assert np.abs(lw0 - kernel).max() > 1e3 * tol, (lw0, kernel)
 
 
 def membrane_run(comm):

@@ -361,19 +361,25 @@ def load(case, deck, st, mem, platens, on_row, operations=(), stop=None, on_even
 
 def contact_measures(sim, platen_gids):
     """Collective, the same bits on any number of ranks (exact sums): the Love-Weber sums
-    ``sum d_a F_b`` [N m] [2, 2] of the contacts that touch a grain outside the platens (the
+    ``sum d_a F_b`` [N m] [2, 2] of the pairs that touch a grain outside the platens (the
     platens' internal contacts left out: they are the boundary, and the x-fixed platen rows keep
-    the lateral prestress of the periodic state), the sliding fraction of the touching contacts
-    (``|f_t| >= (1 - 1e-9) mu f_n``), the coordination ``2 N_c / N`` and ``N``."""
-    cf = isotropic.contact_forces(sim)
+    the lateral prestress of the periodic state), contact and cement forces (cemented pairs apart
+    included), the sliding fraction of the touching contacts (Mindlin force ``|f_t| >= (1 -
+    1e-9) mu f_n``; a contact held by an intact cement does not slide), the coordination ``2
+    N_c / N`` (touching contacts) and ``N``."""
+    cf = isotropic.contact_forces(sim, cement=True)
     mu = float(sim.contacts.params.friction)
     d, F = cf["branch"], cf["force"]
     inner = ~(np.isin(cf["gid_i"], platen_gids) & np.isin(cf["gid_j"], platen_gids))
     terms = np.column_stack([d[:, 0] * F[:, 0], d[:, 0] * F[:, 1], d[:, 1] * F[:, 0], d[:, 1] * F[:, 1]])[inner]
     lw = exact_sum(sim.comm, terms.reshape(-1, 4)).reshape(2, 2)
-    ft2 = np.maximum(np.einsum("ij,ij->i", F, F) - cf["fn"] ** 2, 0.0)
-    sliding = np.count_nonzero((mu > 0.0) & (np.sqrt(ft2) >= (1.0 - 1e-9) * mu * cf["fn"]) & (cf["fn"] > 0.0))
-    tot = sim.comm.sum(np.array([float(len(cf["fn"])), float(sliding), float(sim.elements.n_owned)]))
+    # Coulomb's criterion on the Mindlin force; a contact held by an intact cement does not slide
+    ft = cf["tangential"]
+    free = cf["touching"] & ~cf["intact"] & (cf["fn"] > 0.0)
+    at_limit = np.sqrt(np.einsum("ij,ij->i", ft, ft)) >= (1.0 - 1e-9) * mu * cf["fn"]
+    sliding = np.count_nonzero((mu > 0.0) & free & at_limit)
+    touching = np.count_nonzero(cf["touching"])
+    tot = sim.comm.sum(np.array([float(touching), float(sliding), float(sim.elements.n_owned)]))
     return lw, (float(tot[1] / tot[0]) if tot[0] else 0.0), 2.0 * float(tot[0]) / float(tot[2]), int(tot[2])
 
 

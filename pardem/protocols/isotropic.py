@@ -340,18 +340,40 @@ def gas(n, radii, fractions, solid_fraction, seed, dim=3):
 # ---------------------------------------------------------------------------------------------
 # measurements
 
-def contact_forces(sim):
+def contact_forces(sim, cement=False):
     """This rank's contacts counted once (lower-gid end owned) and touching: dict of ``gid_i``,
     ``gid_j`` [n_c], ``fn`` [n_c] elastic Hertz normal force [N], ``force`` [n_c, 3] force on i [N],
-    ``branch`` [n_c, 3] [m], ``delta`` [n_c] overlap [m], ``dist`` [n_c] centre distance [m]."""
+    ``branch`` [n_c, 3] [m], ``delta`` [n_c] overlap [m], ``dist`` [n_c] centre distance [m].
+
+    ``cement``: with a cemented law, also the pairs apart that hold a cement, and ``force`` the
+    whole elastic force of the last evaluation, contact plus cement (``hertz_mindlin``'s cemented
+    kernel: ``scale (Sn (delta - delta0) n-part, carried tangential force)``, ``scale`` 1 for an
+    intact cement, the fading factor ``-state`` for a broken one); then also ``touching``
+    [n_c] (delta > 0), ``intact`` [n_c] (an intact cement) and ``tangential`` [n_c, 3] (the
+    Mindlin force alone, for the Coulomb criterion). ``fn`` stays the Hertz part."""
     e, c = sim.elements, sim.contacts
     d, n, dist, delta = pair_geometry(c.i, c.j, c.shift, e.x, e.radius)   # the kernels' geometry
-    keep = (delta > 0.0) & c.counted_once(e.n_owned)
-    d, n, dist, delta = d[keep], n[keep], dist[keep], delta[keep]
-    fn = c.law.elastic_normal_force(c.params, e.radius[c.i[keep]], e.radius[c.j[keep]], delta)
-    force = c.history[keep, :3] - fn[:, None] * n        # F_i = ft - fn n (contact_frame)
-    return {"gid_i": e.gid[c.i[keep]], "gid_j": e.gid[c.j[keep]], "fn": fn, "force": force,
-            "branch": d, "delta": delta, "dist": dist}
+    h = c.history
+    cemented = cement and h.shape[1] == hertz_mindlin.WIDTH_CEMENTED
+    state = h[:, hertz_mindlin.CEMENT_STATE] if cemented else None
+    keep = ((delta > 0.0) | (state != 0.0) if cemented else (delta > 0.0)) & c.counted_once(e.n_owned)
+    d, n, dist, delta, h = d[keep], n[keep], dist[keep], delta[keep], h[keep]
+    touching = delta > 0.0
+    fn = np.zeros(len(delta))
+    fn[touching] = c.law.elastic_normal_force(c.params, e.radius[c.i[keep]][touching],
+                                              e.radius[c.j[keep]][touching], delta[touching])
+    force = h[:, :3] - fn[:, None] * n        # F_i = ft - fn n (contact_frame)
+    out = {"gid_i": e.gid[c.i[keep]], "gid_j": e.gid[c.j[keep]], "fn": fn, "force": force,
+           "branch": d, "delta": delta, "dist": dist}
+    if cement:
+        out.update(touching=touching, tangential=h[:, :3].copy(), intact=np.zeros(len(delta), bool))
+    if cemented:
+        st = h[:, hertz_mindlin.CEMENT_STATE]
+        scale = np.where(st > 0.0, 1.0, -st)
+        f_cement = scale * float(c.params.cement_normal) * (delta - h[:, 6])
+        out["force"] = force + scale[:, None] * h[:, 3:6] - f_cement[:, None] * n
+        out["intact"] = st > 0.0
+    return out
 
 
 def balance(sim, p0=None):
