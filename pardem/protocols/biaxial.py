@@ -375,7 +375,7 @@ def contact_measures(sim, platen_gids):
     lw = exact_sum(sim.comm, terms.reshape(-1, 4)).reshape(2, 2)
     # Coulomb's criterion on the Mindlin force; a contact held by an intact cement does not slide
     ft = cf["tangential"]
-    free = cf["touching"] & ~cf["intact"] & (cf["fn"] > 0.0)
+    free = cf["touching"] & ~cf["intact"]       # touching: fn > 0
     at_limit = np.sqrt(np.einsum("ij,ij->i", ft, ft)) >= (1.0 - 1e-9) * mu * cf["fn"]
     sliding = np.count_nonzero((mu > 0.0) & free & at_limit)
     touching = np.count_nonzero(cf["touching"])

@@ -368,10 +368,10 @@ def contact_forces(sim, cement=False):
     if cement:
         out.update(touching=touching, tangential=h[:, :3].copy(), intact=np.zeros(len(delta), bool))
     if cemented:
-        st = h[:, hertz_mindlin.CEMENT_STATE]
+        hm, st = hertz_mindlin, state[keep]
         scale = np.where(st > 0.0, 1.0, -st)
-        f_cement = scale * float(c.params.cement_normal) * (delta - h[:, 6])
-        out["force"] = force + scale[:, None] * h[:, 3:6] - f_cement[:, None] * n
+        f_cement = scale * float(c.params.cement_normal) * (delta - h[:, hm.CEMENT_DELTA0])
+        out["force"] = force + scale[:, None] * h[:, hm.CEMENT_FORCE:hm.CEMENT_FORCE + 3] - f_cement[:, None] * n
         out["intact"] = st > 0.0
     return out
 
