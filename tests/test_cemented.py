@@ -306,3 +306,48 @@ def test_rebuild_reports_an_intact_cement_out_of_reach():
         e.x[1, 0] -= 2 * skin
         c.rebuild(e)                      # back in reach: a fresh, uncemented contact
         assert len(c.i) == 1 and not np.any(c.history)
+
+
+def test_contact_forces_count_cemented_pairs_apart_and_fading_as_the_kernel_applies_them():
+    """``isotropic.contact_forces(sim, cement=True)`` rebuilds each pair's force from its history
+    (NumPy): it must include a pair pulled apart that an intact cement holds and a fading one, with
+    the force the kernel applied. A chain of four spheres, cemented, then the first pulled apart
+    (intact cement in tension, sliding sideways) and the last pair's cement set fading: the end
+    spheres have one pair each, so the kernel's total force on them is that pair's force.
+    Tolerance: round-off of the two groupings of the same terms (1e-12 of the force)."""
+    from pardem.engine import granular
+    from pardem.parallel.communicator import Communicator
+    from pardem.protocols import isotropic
+    overlap = 1e-7
+    pos = np.array([[k * (2 * R - overlap), 0.0, 0.0] for k in range(4)])
+    params = dict(PARAMS, cement_normal=SN, cement_tangential=ST, cement_fade_time=1e-7)
+    case = granular.build(Communicator(), pos, R, RHO, "hertz_mindlin", params, np.full(3, -2 * R),
+                          np.full(3, 12 * R), 1e-9, 0.1 * R, periodic=(False, False, False))
+    sim = case.sim
+    assert cement.cement_contacts(sim, 1e-4, 5e-5, seed=3) == 3   # thresholds far above the loads
+    e, c = sim.elements, sim.contacts
+    g0 = int(np.flatnonzero(e.gid == 0)[0])
+    g3 = int(np.flatnonzero(e.gid == 3)[0])
+    e.x[g0, 0] -= 3 * overlap              # pair (0, 1) apart by 2 overlaps: the cement pulls
+    e.v[g0, 1] = 0.2                       # sliding: a tangential cement force
+    last = np.flatnonzero((e.gid[c.i] == 2) & (e.gid[c.j] == 3) | (e.gid[c.i] == 3) & (e.gid[c.j] == 2))
+    c.history[last, hm.CEMENT_STATE] = -0.6  # fading, and stretched: its fading force is not 0
+    e.x[g3, 0] += 0.5 * overlap
+    e.f[:] = 0.0
+    e.t[:] = 0.0
+    sim.compute_forces()
+    cf = isotropic.contact_forces(sim, cement=True)
+    assert len(cf["fn"]) == 3
+    first = np.flatnonzero((cf["gid_i"] == 0) & (cf["gid_j"] == 1))[0]
+    end = np.flatnonzero((cf["gid_i"] == 2) & (cf["gid_j"] == 3))[0]
+    assert not cf["touching"][first] and cf["intact"][first] and cf["fn"][first] == 0.0
+    assert cf["touching"][end] and not cf["intact"][end]
+    fading = 0.59 * SN * 0.5 * overlap       # (0.6 - dt / t_fade) Sn |delta - delta0| [N]
+    assert fading > 0.2 * abs(-e.f[g3][0])   # a large part of the pair's force
+    F0, F3 = e.f[g0], -e.f[g3]
+    assert F0[0] > 0.0 and abs(F0[1]) > 0.0      # pulled towards sphere 1, dragged sideways
+    np.testing.assert_allclose(cf["force"][first], F0, rtol=0, atol=1e-12 * np.abs(F0).max())
+    np.testing.assert_allclose(cf["force"][end], F3, rtol=0, atol=1e-12 * np.abs(F3).max())
+    # without the cement columns the apart pair would be missing and the fading one differ
+    plain = isotropic.contact_forces(sim)
+    assert len(plain["fn"]) == 2

@@ -38,29 +38,35 @@ Rupture (``rupture_mode``) tests the elastic axial and shear forces, damping exc
 import numpy as np
 from numba import njit
 
-from pardem.physics.pair_loads import scatter_pair
+from pardem.physics.pair_loads import store_row
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _angle_over_sine(s2, c):
-    """``atan2(s, c) / s`` with ``s = sqrt(s2)``: turns ``sin(angle) * axis`` into a rotation vector."""
+def _angle_factor(s2, c, exact):
+    """``(atan2(s, c) / s, ok)`` with ``s = sqrt(s2)``: turns ``sin(angle) * axis`` into a rotation
+    vector. ``exact`` (a compile-time constant) False gives the series branch only, which has no
+    call and vectorises: ``ok`` is then False where the series does not apply (``s2 >= 0.01`` or
+    ``c <= 0``) and the caller recomputes that bond with ``exact``."""
     if s2 < 0.01 and c > 0.0:
         # asin(s)/s series; truncation error below 3e-10 relative at s = 0.1
-        return 1.0 + s2 * (1.0 / 6.0 + s2 * (3.0 / 40.0 + s2 * (5.0 / 112.0)))
+        return 1.0 + s2 * (1.0 / 6.0 + s2 * (3.0 / 40.0 + s2 * (5.0 / 112.0))), True
+    if not exact:
+        return 1.0, False
     if s2 == 0.0:
-        return 1.0
+        return 1.0, True
     s = np.sqrt(s2)
-    return np.arctan2(s, c) / s
+    return np.arctan2(s, c) / s, True
 
 
 @njit(cache=True, inline="always")
-def _bending_rotation(n0, n1, n2, a0, a1, a2):
-    """Rotation vector taking the unit chord n to the unit end axis a (angle about n x a)."""
+def _bending_rotation(n0, n1, n2, a0, a1, a2, exact):
+    """Rotation vector taking the unit chord n to the unit end axis a (angle about n x a), and
+    ``_angle_factor``'s ``ok``."""
     c0 = n1 * a2 - n2 * a1
     c1 = n2 * a0 - n0 * a2
     c2 = n0 * a1 - n1 * a0
-    k = _angle_over_sine(c0 * c0 + c1 * c1 + c2 * c2, n0 * a0 + n1 * a1 + n2 * a2)
-    return c0 * k, c1 * k, c2 * k
+    k, ok = _angle_factor(c0 * c0 + c1 * c1 + c2 * c2, n0 * a0 + n1 * a1 + n2 * a2, exact)
+    return c0 * k, c1 * k, c2 * k, ok
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -153,73 +159,111 @@ def rotation_damping_table(bi, bj, L0, ka, kb, tau_a, mass, inertia):
     return out
 
 
-# layout of ``beam_bond``'s ``out`` row (module constants: Numba compiles them in)
+BLOCK = 32   # bonds per block of the force loop (16 to 64 measured alike, 128 much slower: the
+#              gathered block, 52 rows, must stay in the L1 cache)
+
+# rows of a block's gathered state ``g`` [GATHER_WIDTH, BLOCK] (module constants: Numba compiles
+# them in): the chord x_j - x_i, the two rotation matrices (row-major), the bond's own constants,
+# and for damping its time constants and the ends' rates. The block's force pass then reads ``g``
+# only: with a dozen arrays to read, LLVM would need more run-time alias checks than it makes and
+# would not vectorise the pass.
+G_CHORD = 0         # [3] x_j - x_i [m]
+G_ROT_1 = 3         # [9] rotation matrix of end 1, row-major
+G_ROT_2 = 12        # [9] rotation matrix of end 2
+G_U1 = 21           # [3] body-frame bond axis at end 1 (u1), then p1, u2, p2
+G_P1 = 24
+G_U2 = 27
+G_P2 = 30
+G_L0 = 33           # L0 [m], ka [N/m], kb [N m^2], kt [N m / rad]
+G_KA = 34
+G_KB = 35
+G_KT = 36
+G_TAU_A = 37        # damped only: tau_a, tau_t [s], the rotation damping table [4] [s]
+G_TAU_T = 38
+G_ROT_DAMPING = 39
+G_DV = 43           # [3] v_j - v_i [m/s]
+G_W_1 = 46          # [3] w_i [rad/s]
+G_W_2 = 49          # [3] w_j [rad/s]
+GATHER_WIDTH = 52
+GATHER_UNDAMPED = G_TAU_A
+
+# rows of a block's results ``res`` [RES_WIDTH, BLOCK]
 OUT_FORCE_1 = 0     # [3] force on end 1 [N] (end 2 gets its opposite)
 OUT_MOMENT_1 = 3    # [3] moment on end 1 [N m]
 OUT_MOMENT_2 = 6    # [3] moment on end 2 [N m]
 OUT_AXIAL = 9       # elastic axial force, tension positive [N] (damping excluded)
 OUT_SHEAR = 10      # elastic shear force magnitude [N] (damping excluded)
-OUT_WIDTH = 11
+OUT_ENERGY = 11     # elastic energy [J] (damping excluded)
+OUT_STATUS = 12     # DONE, REDO (the series did not apply: recompute exactly) or SKIP (broken)
+RES_WIDTH = 13
+DONE, REDO, SKIP = 0.0, 1.0, 2.0
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_t, rot_damping, u1, p1, u2, p2, out,
-              damped, densify=False, f_yield=None, plastic=None, p0=0.0, breakable=True):
-    """Force on end 1 and moments on ends 1 and 2 of bond ``b``; writes ``out`` [OUT_WIDTH]: F1, M1, M2
-    (``OUT_FORCE_1``, ``OUT_MOMENT_1``, ``OUT_MOMENT_2``) and, for the rupture test (only with
-    ``breakable``: a loop of unbreakable bonds skips their square root), the axial force
-    ``out[OUT_AXIAL]`` (tension positive) and the shear force magnitude ``out[OUT_SHEAR]`` [N]
-    (both elastic: damping excluded, the strength criterion of docs/physics.md section 7).
+def beam_bond(g, k, b, res, exact, damped, densify, f_yield, plastic, p0, breakable):
+    """Forces of bond ``b`` from column ``k`` of its block's gathered state ``g`` (``G_*`` rows);
+    writes column ``k`` of ``res`` (``OUT_*`` rows): F1, M1, M2, and, for the rupture test (only
+    with ``breakable``: a loop of unbreakable bonds skips their square root), the elastic axial
+    force (tension positive) and shear force magnitude [N] (damping excluded, the strength
+    criterion of docs/physics.md section 7) and the elastic energy [J].
 
-    ``rot_damping`` [n, ROT_DAMPING_WIDTH] : the damping matrix of the two rotation modes of each
-    bond (``rotation_damping_table``; read only when ``damped``).
-    ``damped``, ``densify`` and ``breakable`` must be compile-time constants at the call site (True or False
-    literals): a loop without them carries no trace of their terms. With ``densify``, a bond with
-    ``f_yield[b] > 0`` yields in compression and updates ``plastic[b]`` (``densified_extension``).
-    Returns the elastic energy of the bond [J] (damping excluded).
+    Returns the status, DONE or, with ``exact`` False, REDO: the angles then use their series
+    only (no call, and every store made, so the block's pass vectorises), and where the series
+    does not apply the results are meaningless (with ``densify`` not written, ``plastic``
+    untouched) and the caller calls again with ``exact`` True, which gives the bond the bits of
+    a pass of exact calls (the series branch is the same expression in both).
+    ``exact``, ``damped``, ``densify`` and ``breakable`` must be compile-time constants at the
+    call site (True or False literals): a loop without them carries no trace of their terms. With
+    ``densify``, a bond with ``f_yield[b] > 0`` yields in compression and updates ``plastic[b]``
+    (``densified_extension``).
     """
-    dx0 = x[j, 0] - x[i, 0]
-    dx1 = x[j, 1] - x[i, 1]
-    dx2 = x[j, 2] - x[i, 2]
+    dx0 = g[G_CHORD, k]
+    dx1 = g[G_CHORD + 1, k]
+    dx2 = g[G_CHORD + 2, k]
     L = np.sqrt(dx0 * dx0 + dx1 * dx1 + dx2 * dx2)
     inv_L = 1.0 / L
     n0 = dx0 * inv_L
     n1 = dx1 * inv_L
     n2 = dx2 * inv_L
-    R1 = rot[i]
-    R2 = rot[j]
-    # world-frame bond axes and twist references at both ends
-    a10 = R1[0, 0] * u1[b, 0] + R1[0, 1] * u1[b, 1] + R1[0, 2] * u1[b, 2]
-    a11 = R1[1, 0] * u1[b, 0] + R1[1, 1] * u1[b, 1] + R1[1, 2] * u1[b, 2]
-    a12 = R1[2, 0] * u1[b, 0] + R1[2, 1] * u1[b, 1] + R1[2, 2] * u1[b, 2]
-    r10 = R1[0, 0] * p1[b, 0] + R1[0, 1] * p1[b, 1] + R1[0, 2] * p1[b, 2]
-    r11 = R1[1, 0] * p1[b, 0] + R1[1, 1] * p1[b, 1] + R1[1, 2] * p1[b, 2]
-    r12 = R1[2, 0] * p1[b, 0] + R1[2, 1] * p1[b, 1] + R1[2, 2] * p1[b, 2]
-    a20 = R2[0, 0] * u2[b, 0] + R2[0, 1] * u2[b, 1] + R2[0, 2] * u2[b, 2]
-    a21 = R2[1, 0] * u2[b, 0] + R2[1, 1] * u2[b, 1] + R2[1, 2] * u2[b, 2]
-    a22 = R2[2, 0] * u2[b, 0] + R2[2, 1] * u2[b, 1] + R2[2, 2] * u2[b, 2]
-    r20 = R2[0, 0] * p2[b, 0] + R2[0, 1] * p2[b, 1] + R2[0, 2] * p2[b, 2]
-    r21 = R2[1, 0] * p2[b, 0] + R2[1, 1] * p2[b, 1] + R2[1, 2] * p2[b, 2]
-    r22 = R2[2, 0] * p2[b, 0] + R2[2, 1] * p2[b, 1] + R2[2, 2] * p2[b, 2]
+    # world-frame bond axes and twist references at both ends: a_k = R_k u_k, r_k = R_k p_k
+    a10 = g[G_ROT_1, k] * g[G_U1, k] + g[G_ROT_1 + 1, k] * g[G_U1 + 1, k] + g[G_ROT_1 + 2, k] * g[G_U1 + 2, k]
+    a11 = g[G_ROT_1 + 3, k] * g[G_U1, k] + g[G_ROT_1 + 4, k] * g[G_U1 + 1, k] + g[G_ROT_1 + 5, k] * g[G_U1 + 2, k]
+    a12 = g[G_ROT_1 + 6, k] * g[G_U1, k] + g[G_ROT_1 + 7, k] * g[G_U1 + 1, k] + g[G_ROT_1 + 8, k] * g[G_U1 + 2, k]
+    r10 = g[G_ROT_1, k] * g[G_P1, k] + g[G_ROT_1 + 1, k] * g[G_P1 + 1, k] + g[G_ROT_1 + 2, k] * g[G_P1 + 2, k]
+    r11 = g[G_ROT_1 + 3, k] * g[G_P1, k] + g[G_ROT_1 + 4, k] * g[G_P1 + 1, k] + g[G_ROT_1 + 5, k] * g[G_P1 + 2, k]
+    r12 = g[G_ROT_1 + 6, k] * g[G_P1, k] + g[G_ROT_1 + 7, k] * g[G_P1 + 1, k] + g[G_ROT_1 + 8, k] * g[G_P1 + 2, k]
+    a20 = g[G_ROT_2, k] * g[G_U2, k] + g[G_ROT_2 + 1, k] * g[G_U2 + 1, k] + g[G_ROT_2 + 2, k] * g[G_U2 + 2, k]
+    a21 = g[G_ROT_2 + 3, k] * g[G_U2, k] + g[G_ROT_2 + 4, k] * g[G_U2 + 1, k] + g[G_ROT_2 + 5, k] * g[G_U2 + 2, k]
+    a22 = g[G_ROT_2 + 6, k] * g[G_U2, k] + g[G_ROT_2 + 7, k] * g[G_U2 + 1, k] + g[G_ROT_2 + 8, k] * g[G_U2 + 2, k]
+    r20 = g[G_ROT_2, k] * g[G_P2, k] + g[G_ROT_2 + 1, k] * g[G_P2 + 1, k] + g[G_ROT_2 + 2, k] * g[G_P2 + 2, k]
+    r21 = g[G_ROT_2 + 3, k] * g[G_P2, k] + g[G_ROT_2 + 4, k] * g[G_P2 + 1, k] + g[G_ROT_2 + 5, k] * g[G_P2 + 2, k]
+    r22 = g[G_ROT_2 + 6, k] * g[G_P2, k] + g[G_ROT_2 + 7, k] * g[G_P2 + 1, k] + g[G_ROT_2 + 8, k] * g[G_P2 + 2, k]
 
     # bending rotations th_k = rotation vector taking n to a_k
-    t10, t11, t12 = _bending_rotation(n0, n1, n2, a10, a11, a12)
-    t20, t21, t22 = _bending_rotation(n0, n1, n2, a20, a21, a22)
+    t10, t11, t12, ok1 = _bending_rotation(n0, n1, n2, a10, a11, a12, exact)
+    t20, t21, t22, ok2 = _bending_rotation(n0, n1, n2, a20, a21, a22, exact)
 
     # twist: both references carried onto the chord, then the signed angle between them about n
     s10, s11, s12 = _carry_twist_ref(a10, a11, a12, n0, n1, n2, r10, r11, r12)
     s20, s21, s22 = _carry_twist_ref(a20, a21, a22, n0, n1, n2, r20, r21, r22)
     st = n0 * (s11 * s22 - s12 * s21) + n1 * (s12 * s20 - s10 * s22) + n2 * (s10 * s21 - s11 * s20)
     ct = s10 * s20 + s11 * s21 + s12 * s22
-    tw = st * _angle_over_sine(st * st, ct)
+    kw, ok3 = _angle_factor(st * st, ct, exact)
+    status = DONE
+    if not exact:
+        status = DONE if (ok1 and ok2 and ok3) else REDO
+        if densify:          # the yield updates plastic[b]: once, in the exact call
+            if status == REDO:
+                return status
+    tw = st * kw
 
-    l0 = L0[b]
+    l0 = g[G_L0, k]
     dL = L - l0
     if densify:
         if f_yield[b] > 0.0:
-            dL = densified_extension(dL, l0, ka[b], f_yield[b], p0, plastic, b)
-    kbL = 2.0 * kb[b] / l0
-    energy = 0.5 * ka[b] * dL * dL + 0.5 * kt[b] * tw * tw + kbL * (
+            dL = densified_extension(dL, l0, g[G_KA, k], f_yield[b], p0, plastic, b)
+    kbL = 2.0 * g[G_KB, k] / l0
+    res[OUT_ENERGY, k] = 0.5 * g[G_KA, k] * dL * dL + 0.5 * g[G_KT, k] * tw * tw + kbL * (
         t10 * t10 + t11 * t11 + t12 * t12 + t10 * t20 + t11 * t21 + t12 * t22
         + t20 * t20 + t21 * t21 + t22 * t22)
 
@@ -229,35 +273,41 @@ def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_t, rot_damping, 
     g1 = t11 + t21
     g2 = t12 + t22
     if breakable:
-        out[OUT_AXIAL] = ka[b] * dL
-        out[OUT_SHEAR] = fs * np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)   # th_k are normal to n: |n x g| = |g|
+        res[OUT_AXIAL, k] = g[G_KA, k] * dL
+        res[OUT_SHEAR, k] = fs * np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)   # th_k normal to n: |n x g| = |g|
 
     # rates (damping)
     if damped:
-        ta = tau_a[b]
-        tt = tau_t[b]
-        dv0 = v[j, 0] - v[i, 0]
-        dv1 = v[j, 1] - v[i, 1]
-        dv2 = v[j, 2] - v[i, 2]
+        ta = g[G_TAU_A, k]
+        tt = g[G_TAU_T, k]
+        dv0 = g[G_DV, k]
+        dv1 = g[G_DV + 1, k]
+        dv2 = g[G_DV + 2, k]
         dL += ta * (dv0 * n0 + dv1 * n1 + dv2 * n2)
         wc0 = (n1 * dv2 - n2 * dv1) * inv_L
         wc1 = (n2 * dv0 - n0 * dv2) * inv_L
         wc2 = (n0 * dv1 - n1 * dv0) * inv_L
         # the two rotation modes damped at ratio zeta each (rotation_damping, tabulated)
-        d11 = rot_damping[b, 0]
-        d12 = rot_damping[b, 1]
-        d21 = rot_damping[b, 2]
-        d22 = rot_damping[b, 3]
-        e0 = w[i, 0] - wc0
-        e1 = w[i, 1] - wc1
-        e2 = w[i, 2] - wc2
+        d11 = g[G_ROT_DAMPING, k]
+        d12 = g[G_ROT_DAMPING + 1, k]
+        d21 = g[G_ROT_DAMPING + 2, k]
+        d22 = g[G_ROT_DAMPING + 3, k]
+        wi0 = g[G_W_1, k]
+        wi1 = g[G_W_1 + 1, k]
+        wi2 = g[G_W_1 + 2, k]
+        wj0 = g[G_W_2, k]
+        wj1 = g[G_W_2 + 1, k]
+        wj2 = g[G_W_2 + 2, k]
+        e0 = wi0 - wc0
+        e1 = wi1 - wc1
+        e2 = wi2 - wc2
         en = e0 * n0 + e1 * n1 + e2 * n2
         y10 = e0 - en * n0
         y11 = e1 - en * n1
         y12 = e2 - en * n2
-        e0 = w[j, 0] - wc0
-        e1 = w[j, 1] - wc1
-        e2 = w[j, 2] - wc2
+        e0 = wj0 - wc0
+        e1 = wj1 - wc1
+        e2 = wj2 - wc2
         en = e0 * n0 + e1 * n1 + e2 * n2
         y20 = e0 - en * n0
         y21 = e1 - en * n1
@@ -268,55 +318,140 @@ def beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_t, rot_damping, 
         t20 += d21 * y10 + d22 * y20
         t21 += d21 * y11 + d22 * y21
         t22 += d21 * y12 + d22 * y22
-        tw += tt * ((w[j, 0] - w[i, 0]) * n0 + (w[j, 1] - w[i, 1]) * n1 + (w[j, 2] - w[i, 2]) * n2)
+        tw += tt * ((wj0 - wi0) * n0 + (wj1 - wi1) * n1 + (wj2 - wi2) * n2)
 
-    fa = ka[b] * dL
+    fa = g[G_KA, k] * dL
     if damped:
         g0 = t10 + t20
         g1 = t11 + t21
         g2 = t12 + t22
-    out[0] = fa * n0 + fs * (n1 * g2 - n2 * g1)
-    out[1] = fa * n1 + fs * (n2 * g0 - n0 * g2)
-    out[2] = fa * n2 + fs * (n0 * g1 - n1 * g0)
-    mt = kt[b] * tw
-    out[3] = mt * n0 - kbL * (2.0 * t10 + t20)
-    out[4] = mt * n1 - kbL * (2.0 * t11 + t21)
-    out[5] = mt * n2 - kbL * (2.0 * t12 + t22)
-    out[6] = -mt * n0 - kbL * (t10 + 2.0 * t20)
-    out[7] = -mt * n1 - kbL * (t11 + 2.0 * t21)
-    out[8] = -mt * n2 - kbL * (t12 + 2.0 * t22)
-    return energy
+    res[OUT_FORCE_1, k] = fa * n0 + fs * (n1 * g2 - n2 * g1)
+    res[OUT_FORCE_1 + 1, k] = fa * n1 + fs * (n2 * g0 - n0 * g2)
+    res[OUT_FORCE_1 + 2, k] = fa * n2 + fs * (n0 * g1 - n1 * g0)
+    mt = g[G_KT, k] * tw
+    res[OUT_MOMENT_1, k] = mt * n0 - kbL * (2.0 * t10 + t20)
+    res[OUT_MOMENT_1 + 1, k] = mt * n1 - kbL * (2.0 * t11 + t21)
+    res[OUT_MOMENT_1 + 2, k] = mt * n2 - kbL * (2.0 * t12 + t22)
+    res[OUT_MOMENT_2, k] = -mt * n0 - kbL * (t10 + 2.0 * t20)
+    res[OUT_MOMENT_2 + 1, k] = -mt * n1 - kbL * (t11 + 2.0 * t21)
+    res[OUT_MOMENT_2 + 2, k] = -mt * n2 - kbL * (t12 + 2.0 * t22)
+    return status
 
 
 def _bond_loop(damped, breakable, densify):
     """The loop over all bonds with damping, rupture and densification compiled in or out (the
-    flags are frozen as constants)."""
+    flags are frozen as constants).
+
+    Blocks of ``BLOCK`` bonds in three passes, as the contact loop (``pair_loop``): gather the
+    ends' state (the only indirect reads), the forces of the block without indirect access or
+    calls (LLVM vectorises it), then in bond order the exact recomputation of the rare bonds
+    whose angles left the series' range, the rupture test and the scatter, the first end's
+    loads kept in registers over a run of bonds with the same first end. The sums to a row are
+    made in bond order, as one bond at a time would make them: the results are bitwise those of
+    a plain loop over ``beam_bond(..., exact=True)`` (``tests/test_bond_block_loop.py``).
+    """
+    B = BLOCK
+    NG = GATHER_WIDTH if damped else GATHER_UNDAMPED
+
     @njit(cache=True, error_model="numpy")
     def loop(bi, bj, x, v, w, rot, f, t, L0, ka, kb, kt, tau_a, tau_t, rot_damping, u1, p1, u2, p2,
              state, f_tensile, f_shear, f_yield, plastic, p0, n_owned):
-        out = np.empty(OUT_WIDTH)
+        g = np.zeros((NG, B))      # zeros: a broken bond's column is never uninitialised memory
+        res = np.empty((RES_WIDTH, B))
         energy = 0.0
         broken = 0
         counted = 0
-        for b in range(bi.shape[0]):
-            if breakable:
-                if state[b] != 0:
+        cur = -1                     # the row whose loads are in fi, ti
+        fi0 = fi1 = fi2 = ti0 = ti1 = ti2 = 0.0
+        n_bonds = bi.shape[0]
+        for b0 in range(0, n_bonds, B):
+            m = min(B, n_bonds - b0)
+            for k in range(m):       # gather
+                b = b0 + k
+                if breakable:
+                    if state[b] != 0:
+                        continue
+                i = bi[b]
+                j = bj[b]
+                g[G_CHORD, k] = x[j, 0] - x[i, 0]
+                g[G_CHORD + 1, k] = x[j, 1] - x[i, 1]
+                g[G_CHORD + 2, k] = x[j, 2] - x[i, 2]
+                for r in range(3):
+                    for c in range(3):
+                        g[G_ROT_1 + 3 * r + c, k] = rot[i, r, c]
+                        g[G_ROT_2 + 3 * r + c, k] = rot[j, r, c]
+                for d in range(3):
+                    g[G_U1 + d, k] = u1[b, d]
+                    g[G_P1 + d, k] = p1[b, d]
+                    g[G_U2 + d, k] = u2[b, d]
+                    g[G_P2 + d, k] = p2[b, d]
+                g[G_L0, k] = L0[b]
+                g[G_KA, k] = ka[b]
+                g[G_KB, k] = kb[b]
+                g[G_KT, k] = kt[b]
+                if damped:
+                    g[G_TAU_A, k] = tau_a[b]
+                    g[G_TAU_T, k] = tau_t[b]
+                    for d in range(4):
+                        g[G_ROT_DAMPING + d, k] = rot_damping[b, d]
+                    for d in range(3):
+                        g[G_DV + d, k] = v[j, d] - v[i, d]
+                        g[G_W_1 + d, k] = w[i, d]
+                        g[G_W_2 + d, k] = w[j, d]
+            for k in range(m):       # forces, no indirect access: vectorised
+                b = b0 + k
+                if densify:          # (not vectorised: exp) a broken bond must not yield
+                    if breakable:
+                        if state[b] != 0:
+                            res[OUT_STATUS, k] = SKIP
+                            continue
+                # a broken bond's column holds stale values: computed, then dropped (SKIP)
+                status = beam_bond(g, k, b, res, False, damped, densify, f_yield, plastic, p0,
+                                   breakable)
+                if breakable:
+                    status = SKIP if state[b] != 0 else status
+                res[OUT_STATUS, k] = status
+            for k in range(m):       # exact where needed, rupture, scatter in bond order
+                b = b0 + k
+                status = res[OUT_STATUS, k]
+                if status == SKIP:
                     continue
-            i = bi[b]
-            j = bj[b]
-            e = beam_bond(b, i, j, x, v, w, rot, L0, ka, kb, kt, tau_a, tau_t, rot_damping, u1, p1,
-                          u2, p2, out, damped, densify, f_yield, plastic, p0, breakable)
-            if breakable:
-                mode = rupture_mode(out[OUT_AXIAL], out[OUT_SHEAR], f_tensile[b], f_shear[b])
-                if mode != 0:
-                    # a broken bond stops acting at once: its force of this step is not applied
-                    state[b] = mode
-                    broken += 1
-                    if i < n_owned:
-                        counted += 1
-                    continue
-            energy += e
-            scatter_pair(i, j, f, t, out)
+                if status == REDO:
+                    beam_bond(g, k, b, res, True, damped, densify, f_yield, plastic, p0, breakable)
+                i = bi[b]
+                j = bj[b]
+                if breakable:
+                    mode = rupture_mode(res[OUT_AXIAL, k], res[OUT_SHEAR, k], f_tensile[b],
+                                        f_shear[b])
+                    if mode != 0:
+                        # a broken bond stops acting at once: its force of this step is not applied
+                        state[b] = mode
+                        broken += 1
+                        if i < n_owned:
+                            counted += 1
+                        continue
+                energy += res[OUT_ENERGY, k]
+                if i != cur:         # a new run: store the last one's loads, load this one's
+                    if cur >= 0:
+                        store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
+                    cur = i
+                    fi0, fi1, fi2 = f[i, 0], f[i, 1], f[i, 2]
+                    ti0, ti1, ti2 = t[i, 0], t[i, 1], t[i, 2]
+                # as pair_loads.scatter_pair (j != i: a bond never joins a row to itself)
+                fi0 += res[OUT_FORCE_1, k]
+                fi1 += res[OUT_FORCE_1 + 1, k]
+                fi2 += res[OUT_FORCE_1 + 2, k]
+                f[j, 0] -= res[OUT_FORCE_1, k]
+                f[j, 1] -= res[OUT_FORCE_1 + 1, k]
+                f[j, 2] -= res[OUT_FORCE_1 + 2, k]
+                ti0 += res[OUT_MOMENT_1, k]
+                ti1 += res[OUT_MOMENT_1 + 1, k]
+                ti2 += res[OUT_MOMENT_1 + 2, k]
+                t[j, 0] += res[OUT_MOMENT_2, k]
+                t[j, 1] += res[OUT_MOMENT_2 + 1, k]
+                t[j, 2] += res[OUT_MOMENT_2 + 2, k]
+        if cur >= 0:
+            store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
         return energy, broken, counted
     return loop
 

@@ -18,3 +18,15 @@ def scatter_pair(i, j, f, t, out):
     t[j, 0] += out[6]
     t[j, 1] += out[7]
     t[j, 2] += out[8]
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def store_row(f, t, row, f0, f1, f2, t0, t1, t2):
+    """Write the loads of one row kept in registers, ``f[row] = (f0, f1, f2)``, ``t[row] = (t0, t1,
+    t2)`` (the loops that sum a run of pairs with the same first end outside memory)."""
+    f[row, 0] = f0
+    f[row, 1] = f1
+    f[row, 2] = f2
+    t[row, 0] = t0
+    t[row, 1] = t1
+    t[row, 2] = t2

@@ -48,6 +48,7 @@ from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, add_love_weber, aff
 from pardem.physics.exact_accumulate import NLIMB
 from pardem.physics.exact_accumulate import add as exact_add
 from pardem.physics.exact_accumulate import normalize as exact_normalize
+from pardem.physics.pair_loads import store_row
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -137,16 +138,6 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     return _jit(_list_loop(bool(periodic), bool(deforming), bool(with_energy), bool(exact),
                            bool(with_stress) or bool(exact)), pair,
                 _name(forces, engaged), forces=forces, engaged=engaged)
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _store_row(f, t, row, f0, f1, f2, t0, t1, t2):
-    f[row, 0] = f0
-    f[row, 1] = f1
-    f[row, 2] = f2
-    t[row, 0] = t0
-    t[row, 1] = t1
-    t[row, 2] = t2
 
 
 NO_XACC = np.zeros((10, NLIMB), dtype=np.int64)   # the exact accumulator of loops without ``exact``
@@ -255,12 +246,12 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress):
                 o2 = res[2, k]
                 if i != cur:         # a new run: store the last one's i-side, load this one's
                     if cur >= 0:
-                        _store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
+                        store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
                     cur = i
                     fi0, fi1, fi2 = f[i, 0], f[i, 1], f[i, 2]
                     ti0, ti1, ti2 = t[i, 0], t[i, 1], t[i, 2]
                 if j == cur:         # a self image (tiny periodic cell): both ends in memory
-                    _store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
+                    store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
                     cur = -1
                     scatter_pair(i, j, f, t, res[:9, k])
                 else:                # as pair_loads.scatter_pair, the i-side in registers
@@ -308,7 +299,7 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress):
                     a21 += b2 * o1
                     a22 += b2 * o2
         if cur >= 0:
-            _store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
+            store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
         add_love_weber(acc, a00, a01, a02, a10, a11, a12, a20, a21, a22, count)
         if exact:
             exact_normalize(xacc)  # noqa: F821
