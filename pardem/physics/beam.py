@@ -38,7 +38,7 @@ Rupture (``rupture_mode``) tests the elastic axial and shear forces, damping exc
 import numpy as np
 from numba import njit
 
-from pardem.physics.pair_loads import store_row
+from pardem.physics.pair_loads import next_run, store_row
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -200,6 +200,18 @@ DONE, REDO, SKIP = 0.0, 1.0, 2.0
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def _turned(g, k, rot, vec):
+    """``R u`` of column ``k`` of a gathered block: ``R`` the row-major matrix in rows
+    ``rot:rot + 9``, ``u`` the vector in rows ``vec:vec + 3``."""
+    u0 = g[vec, k]
+    u1 = g[vec + 1, k]
+    u2 = g[vec + 2, k]
+    return (g[rot, k] * u0 + g[rot + 1, k] * u1 + g[rot + 2, k] * u2,
+            g[rot + 3, k] * u0 + g[rot + 4, k] * u1 + g[rot + 5, k] * u2,
+            g[rot + 6, k] * u0 + g[rot + 7, k] * u1 + g[rot + 8, k] * u2)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def beam_bond(g, k, b, res, exact, damped, densify, f_yield, plastic, p0, breakable):
     """Forces of bond ``b`` from column ``k`` of its block's gathered state ``g`` (``G_*`` rows);
     writes column ``k`` of ``res`` (``OUT_*`` rows): F1, M1, M2, and, for the rupture test (only
@@ -226,18 +238,10 @@ def beam_bond(g, k, b, res, exact, damped, densify, f_yield, plastic, p0, breaka
     n1 = dx1 * inv_L
     n2 = dx2 * inv_L
     # world-frame bond axes and twist references at both ends: a_k = R_k u_k, r_k = R_k p_k
-    a10 = g[G_ROT_1, k] * g[G_U1, k] + g[G_ROT_1 + 1, k] * g[G_U1 + 1, k] + g[G_ROT_1 + 2, k] * g[G_U1 + 2, k]
-    a11 = g[G_ROT_1 + 3, k] * g[G_U1, k] + g[G_ROT_1 + 4, k] * g[G_U1 + 1, k] + g[G_ROT_1 + 5, k] * g[G_U1 + 2, k]
-    a12 = g[G_ROT_1 + 6, k] * g[G_U1, k] + g[G_ROT_1 + 7, k] * g[G_U1 + 1, k] + g[G_ROT_1 + 8, k] * g[G_U1 + 2, k]
-    r10 = g[G_ROT_1, k] * g[G_P1, k] + g[G_ROT_1 + 1, k] * g[G_P1 + 1, k] + g[G_ROT_1 + 2, k] * g[G_P1 + 2, k]
-    r11 = g[G_ROT_1 + 3, k] * g[G_P1, k] + g[G_ROT_1 + 4, k] * g[G_P1 + 1, k] + g[G_ROT_1 + 5, k] * g[G_P1 + 2, k]
-    r12 = g[G_ROT_1 + 6, k] * g[G_P1, k] + g[G_ROT_1 + 7, k] * g[G_P1 + 1, k] + g[G_ROT_1 + 8, k] * g[G_P1 + 2, k]
-    a20 = g[G_ROT_2, k] * g[G_U2, k] + g[G_ROT_2 + 1, k] * g[G_U2 + 1, k] + g[G_ROT_2 + 2, k] * g[G_U2 + 2, k]
-    a21 = g[G_ROT_2 + 3, k] * g[G_U2, k] + g[G_ROT_2 + 4, k] * g[G_U2 + 1, k] + g[G_ROT_2 + 5, k] * g[G_U2 + 2, k]
-    a22 = g[G_ROT_2 + 6, k] * g[G_U2, k] + g[G_ROT_2 + 7, k] * g[G_U2 + 1, k] + g[G_ROT_2 + 8, k] * g[G_U2 + 2, k]
-    r20 = g[G_ROT_2, k] * g[G_P2, k] + g[G_ROT_2 + 1, k] * g[G_P2 + 1, k] + g[G_ROT_2 + 2, k] * g[G_P2 + 2, k]
-    r21 = g[G_ROT_2 + 3, k] * g[G_P2, k] + g[G_ROT_2 + 4, k] * g[G_P2 + 1, k] + g[G_ROT_2 + 5, k] * g[G_P2 + 2, k]
-    r22 = g[G_ROT_2 + 6, k] * g[G_P2, k] + g[G_ROT_2 + 7, k] * g[G_P2 + 1, k] + g[G_ROT_2 + 8, k] * g[G_P2 + 2, k]
+    a10, a11, a12 = _turned(g, k, G_ROT_1, G_U1)
+    r10, r11, r12 = _turned(g, k, G_ROT_1, G_P1)
+    a20, a21, a22 = _turned(g, k, G_ROT_2, G_U2)
+    r20, r21, r22 = _turned(g, k, G_ROT_2, G_P2)
 
     # bending rotations th_k = rotation vector taking n to a_k
     t10, t11, t12, ok1 = _bending_rotation(n0, n1, n2, a10, a11, a12, exact)
@@ -432,11 +436,8 @@ def _bond_loop(damped, breakable, densify):
                         continue
                 energy += res[OUT_ENERGY, k]
                 if i != cur:         # a new run: store the last one's loads, load this one's
-                    if cur >= 0:
-                        store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
-                    cur = i
-                    fi0, fi1, fi2 = f[i, 0], f[i, 1], f[i, 2]
-                    ti0, ti1, ti2 = t[i, 0], t[i, 1], t[i, 2]
+                    cur, fi0, fi1, fi2, ti0, ti1, ti2 = next_run(f, t, cur, i, fi0, fi1, fi2, ti0,
+                                                                 ti1, ti2)
                 # as pair_loads.scatter_pair (j != i: a bond never joins a row to itself)
                 fi0 += res[OUT_FORCE_1, k]
                 fi1 += res[OUT_FORCE_1 + 1, k]

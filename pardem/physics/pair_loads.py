@@ -30,3 +30,13 @@ def store_row(f, t, row, f0, f1, f2, t0, t1, t2):
     t[row, 0] = t0
     t[row, 1] = t1
     t[row, 2] = t2
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def next_run(f, t, cur, row, f0, f1, f2, t0, t1, t2):
+    """A new run of pairs with first end ``row``: the loads of the last run's row ``cur`` (kept in
+    registers, none when ``cur < 0``) stored, those of ``row`` loaded. Returns ``(row, f[row],
+    t[row])`` as 7 scalars."""
+    if cur >= 0:
+        store_row(f, t, cur, f0, f1, f2, t0, t1, t2)
+    return row, f[row, 0], f[row, 1], f[row, 2], t[row, 0], t[row, 1], t[row, 2]

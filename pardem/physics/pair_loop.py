@@ -48,7 +48,7 @@ from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, add_love_weber, aff
 from pardem.physics.exact_accumulate import NLIMB
 from pardem.physics.exact_accumulate import add as exact_add
 from pardem.physics.exact_accumulate import normalize as exact_normalize
-from pardem.physics.pair_loads import store_row
+from pardem.physics.pair_loads import next_run, store_row
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -245,11 +245,8 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress):
                 o1 = res[1, k]
                 o2 = res[2, k]
                 if i != cur:         # a new run: store the last one's i-side, load this one's
-                    if cur >= 0:
-                        store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
-                    cur = i
-                    fi0, fi1, fi2 = f[i, 0], f[i, 1], f[i, 2]
-                    ti0, ti1, ti2 = t[i, 0], t[i, 1], t[i, 2]
+                    cur, fi0, fi1, fi2, ti0, ti1, ti2 = next_run(f, t, cur, i, fi0, fi1, fi2, ti0,
+                                                                 ti1, ti2)
                 if j == cur:         # a self image (tiny periodic cell): both ends in memory
                     store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
                     cur = -1
