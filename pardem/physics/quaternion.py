@@ -16,18 +16,45 @@ def quat_multiply_into(a, b, out):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def matrix_entries(w, x, y, z):
+    """The nine entries, row by row, of the rotation matrix of the unit quaternion ``(w, x, y, z)``."""
+    return (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y),
+            2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x),
+            2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y))
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def quat_to_matrix_into(q, m):
     """Rotation matrix ``m`` [3, 3] of the unit quaternion ``q`` [4]."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    m[0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    m[0, 1] = 2.0 * (x * y - w * z)
-    m[0, 2] = 2.0 * (x * z + w * y)
-    m[1, 0] = 2.0 * (x * y + w * z)
-    m[1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    m[1, 2] = 2.0 * (y * z - w * x)
-    m[2, 0] = 2.0 * (x * z - w * y)
-    m[2, 1] = 2.0 * (y * z + w * x)
-    m[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    (m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2], m[2, 0], m[2, 1],
+     m[2, 2]) = matrix_entries(q[0], q[1], q[2], q[3])
+
+
+SERIES_ANGLE2 = 1e-4   # [rad^2]: below it, the rotation of one step by series (h = ang/2 < 5e-3)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def series_factors(ang2):
+    """``(sin(h) / (2 h), cos(h))`` of the half angle ``h``, ``h^2 = ang2 / 4``, by series: exact to
+    round-off for ``ang2 < SERIES_ANGLE2``, no sqrt/sin/cos; constant reciprocals, not divisions
+    (LLVM keeps a division by a constant: it cost 70 % of the drift of a granular step)."""
+    h2 = 0.25 * ang2
+    s = 0.5 * (1.0 - h2 * (1.0 / 6.0) * (1.0 - h2 * (1.0 / 20.0)))
+    c = 1.0 - 0.5 * h2 * (1.0 - h2 * (1.0 / 12.0) * (1.0 - h2 * (1.0 / 30.0)))
+    return s, c
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def turned(c, s, ax, ay, az, w0, x0, y0, z0):
+    """``exp(a / 2) * q`` renormalised, for the rotation vector ``a`` of one step [rad] with
+    ``s = sin(|a|/2) / |a|``, ``c = cos(|a|/2)`` and ``q = (w0, x0, y0, z0)``."""
+    dw, dx, dy, dz = c, ax * s, ay * s, az * s
+    nw = dw * w0 - dx * x0 - dy * y0 - dz * z0
+    nx = dw * x0 + dx * w0 + dy * z0 - dz * y0
+    ny = dw * y0 - dx * z0 + dy * w0 + dz * x0
+    nz = dw * z0 + dx * y0 - dy * x0 + dz * w0
+    inv = 1.0 / np.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
+    return nw * inv, nx * inv, ny * inv, nz * inv
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -42,28 +69,13 @@ def rotate_world(q, w, dt):
     ang2 = ax * ax + ay * ay + az * az
     if ang2 == 0.0:
         return
-    if ang2 < 1e-4:
-        # sin(h)/(2h) and cos(h) by series, h = ang/2 < 5e-3: exact to round-off, no sqrt/sin/cos;
-        # constant reciprocals, not divisions (LLVM keeps a division by a constant: it cost 70 %
-        # of the drift of a granular step)
-        h2 = 0.25 * ang2
-        s = 0.5 * (1.0 - h2 * (1.0 / 6.0) * (1.0 - h2 * (1.0 / 20.0)))
-        c = 1.0 - 0.5 * h2 * (1.0 - h2 * (1.0 / 12.0) * (1.0 - h2 * (1.0 / 30.0)))
+    if ang2 < SERIES_ANGLE2:
+        s, c = series_factors(ang2)
     else:
         ang = np.sqrt(ang2)
         s = np.sin(0.5 * ang) / ang
         c = np.cos(0.5 * ang)
-    dw, dx, dy, dz = c, ax * s, ay * s, az * s
-    w0, x0, y0, z0 = q[0], q[1], q[2], q[3]
-    nw = dw * w0 - dx * x0 - dy * y0 - dz * z0
-    nx = dw * x0 + dx * w0 + dy * z0 - dz * y0
-    ny = dw * y0 - dx * z0 + dy * w0 + dz * x0
-    nz = dw * z0 + dx * y0 - dy * x0 + dz * w0
-    inv = 1.0 / np.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
-    q[0] = nw * inv
-    q[1] = nx * inv
-    q[2] = ny * inv
-    q[3] = nz * inv
+    q[0], q[1], q[2], q[3] = turned(c, s, ax, ay, az, q[0], q[1], q[2], q[3])
 
 
 def quat_from_rotvec(rv):
