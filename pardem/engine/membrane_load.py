@@ -29,7 +29,14 @@ agree with the full ones before the first; after it a walk may wander) and the w
 first faulty decision moves later every round, and after ``WIDEN_ROUNDS`` rounds every grain is
 gathered. The preselection is only a guess; the check is what makes it exact.
 
-State for a restart (``state`` / ``from_state``): the chains' gids, the rebuild count and step;
+The sample's area (``area``) is the polygon through the chains' centres closed by the platens. A
+rebuild changes that outline without any grain moving (a grain joins the chain outside the old
+one, or leaves it), so the area jumps by up to about a grain's area per change; the volumetric
+strain must not see those jumps. Each rebuild therefore adds to ``area_offset`` the area of the
+old outline minus that of the new, both at the positions of the rebuild's step, and
+``tracked_area`` = ``area`` + ``area_offset`` changes only as the grains move.
+
+State for a restart (``state`` / ``from_state``): the chains' gids, the rebuild count and step, the area offset;
 with them the restarted run applies the same loads bit for bit (the chains do not depend on which
 grains were gathered).
 """
@@ -97,6 +104,7 @@ class MembraneLoad:
         self.chains = None
         self.skipped = {s: np.zeros(0, np.int64) for s in SIDES}   # grains the last rebuild left out
         self.rebuilds = 0
+        self.area_offset = 0.0      # [m^2] the outline changes of the rebuilds (tracked_area)
         self.built_at = -1
         self.gathered = 0           # grains the last rebuild gathered, and its widening rounds
         self.widened = 0
@@ -142,6 +150,7 @@ class MembraneLoad:
         e, n = sim.elements, sim.elements.n_owned
         own_gid, own_x = e.gid[:n], np.ascontiguousarray(e.x[:n, :2])
         from_top = self.rebuilds % 2 == 1
+        area_before = None if self.chains is None else enclosed_area(self.gather_positions(sim))
         keep = self.preselect(sim)
         for round_ in range(WIDEN_ROUNDS + 2):
             if round_ == WIDEN_ROUNDS + 1:
@@ -181,6 +190,9 @@ class MembraneLoad:
             chains[side] = gid[w.links]
             self.skipped[side] = gid[w.skipped]
         self.set_chains(chains)
+        if area_before is not None:
+            # the outline changed, the grains did not move: carry the difference (module docstring)
+            self.area_offset += area_before - enclosed_area(self.gather_positions(sim))
         self.rebuilds += 1
         self.built_at = sim.step_count
 
@@ -227,20 +239,24 @@ class MembraneLoad:
     def polygon(self):
         """The sample outline [k, 2] [m] through the membrane grains' centres: the right chain
         bottom -> top, then the left chain top -> bottom (counter-clockwise)."""
-        return np.vstack([self.positions["right"], self.positions["left"][::-1]])
+        return outline(self.positions)
 
     def area(self):
         """Area [m^2] enclosed by ``polygon`` (shoelace; the platens close it between the chains' ends)."""
-        p = self.polygon()
-        x, y = p[:, 0], p[:, 1]
-        return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+        return enclosed_area(self.positions)
+
+    def tracked_area(self):
+        """``area()`` plus ``area_offset`` [m^2]: the area whose changes are the sample's
+        deformation only, continuous across the rebuilds (the volumetric strain's; module
+        docstring)."""
+        return self.area() + self.area_offset
 
     def state(self):
         """JSON-friendly state for a checkpoint (with the constructor's arguments)."""
         return {"bottom": self.bottom.tolist(), "top": self.top.tolist(), "pressure": self.pressure,
                 "thickness": self.thickness, "r_m": self.r_m, "rebuild_every": self.rebuild_every,
                 "chains": None if self.chains is None else {s: self.chains[s].tolist() for s in SIDES},
-                "rebuilds": self.rebuilds, "built_at": self.built_at}
+                "rebuilds": self.rebuilds, "built_at": self.built_at, "area_offset": self.area_offset}
 
     @classmethod
     def from_state(cls, s):
@@ -249,7 +265,21 @@ class MembraneLoad:
             m.set_chains(s["chains"])
         m.rebuilds = int(s["rebuilds"])
         m.built_at = int(s["built_at"])
+        m.area_offset = float(s.get("area_offset", 0.0))   # absent from checkpoints before it
         return m
 
 
-__all__ = ["MembraneLoad", "SIDES"]
+def outline(positions):
+    """The polygon [k, 2] [m] through the chains' centres ``positions`` ({side: [m, 2]}): the
+    right chain bottom -> top, then the left chain top -> bottom (counter-clockwise)."""
+    return np.vstack([positions["right"], positions["left"][::-1]])
+
+
+def enclosed_area(positions):
+    """Area [m^2] of ``outline(positions)`` (shoelace; the platens close it between the chains' ends)."""
+    p = outline(positions)
+    x, y = p[:, 0], p[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+__all__ = ["MembraneLoad", "SIDES", "enclosed_area"]

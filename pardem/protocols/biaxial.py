@@ -32,8 +32,9 @@ Protocol, for each confining pressure ``pc`` of ``loading.confining_pressures`` 
 6. ``loading.settle_steps`` steps with the platens at rest, then the loading to ``loading.strain``.
 
 Measures (``sample``; compression positive): the sample's area ``A`` is the polygon through the
-membrane grains' centres closed by the platens (``MembraneLoad.area``); ``eps_v = 1 - A / A0``
-(contraction positive); the stress is the Love-Weber stress of all contacts over the sample's
+membrane grains' centres closed by the platens (``MembraneLoad.area``); ``eps_v = 1 - A' / A0'``
+(contraction positive) with ``A'`` the area tracked across the chain rebuilds
+(``MembraneLoad.tracked_area``: a rebuild's change of outline is not a change of volume); the stress is the Love-Weber stress of all contacts over the sample's
 volume ``A t``, ``sigma = sum_c d f / (A t)`` (tension positive; the engine's exact sums). In
 static equilibrium it is the boundary sum of the membrane loads (``p t`` times the area their
 chains enclose) and of the platens' reactions, so ``sigma_l = -sigma_xx`` is the lateral stress
@@ -175,7 +176,7 @@ UNITS = ("1", "s", "1", "Pa", "1", "1", "Pa", "Pa", "Pa", "Pa", "Pa", "Pa", "1",
 INT_COLUMNS = ("step", "pressure_index", "membrane_grains", "n_grains", "cements_intact", "cements_fading",
                "cements_broken")
 DESCRIPTION = ("pardem biaxial series: one row per sample of the loading of each confining pressure: axial "
-               "strain 1 - H/H0, volumetric strain 1 - A/A0 (membrane polygon area, contraction positive), "
+               "strain 1 - H/H0, volumetric strain 1 - A/A0 (membrane polygon area carried across the chain rebuilds, contraction positive), "
                "Love-Weber stresses of the contacts over the sample's area times the thickness (compression "
                "positive; _inner: without the contacts between two platen grains), deviator q, mean in-plane stress s, sin phi = q / 2s, the platens' axial stress from "
                "their reactions, coordination, sliding-contact fraction, membrane grains, grains, cement counts "
@@ -320,7 +321,7 @@ def reference(case, mem, geo, deck):
     """The loading's reference state: step, height H0, area A0, platen speed."""
     sim = case.sim
     mem.positions = mem.gather_positions(sim)
-    return {"step": sim.step_count, "height": geo["y_top"] - geo["y_bottom"], "area": mem.area(),
+    return {"step": sim.step_count, "height": geo["y_top"] - geo["y_bottom"], "area": mem.tracked_area(),
             "speed": platen_speed(deck, geo)}
 
 
@@ -409,7 +410,7 @@ def sample(case, st, mem, platens, record=None):
     if record is not None and n0:
         record.update(intact_cements(sim), eps_a, sim.step_count)
     return {"step": sim.step_count, "time": sim.time, "pressure_index": st["index"], "pc": st["pc"],
-            "eps_axial": eps_a, "eps_vol": 1.0 - A / ref["area"],
+            "eps_axial": eps_a, "eps_vol": 1.0 - mem.tracked_area() / ref["area"],
             "sigma_axial": sa, "sigma_lateral": sl, "sigma_axial_inner": -float(inner[1, 1]),
             "sigma_lateral_inner": -float(inner[0, 0]), "q": q, "s": s, "sin_phi": q / (2.0 * s) if s > 0 else 0.0,
             "sigma_axial_platens": sap, "coordination": Z, "sliding_fraction": sliding,
