@@ -191,8 +191,9 @@ class MembraneLoad:
             self.skipped[side] = gid[w.skipped]
         self.set_chains(chains)
         if area_before is not None:
-            # the outline changed, the grains did not move: carry the difference (module docstring)
-            self.area_offset += area_before - enclosed_area(self.gather_positions(sim))
+            # the outline changed, the grains did not move: carry the difference (module
+            # docstring); the new chains' positions are among the gathered ones
+            self.area_offset += area_before - enclosed_area({s: x[walks[s].links] for s in SIDES})
         self.rebuilds += 1
         self.built_at = sim.step_count
 
