@@ -46,10 +46,9 @@ import numpy as np
 import pardem
 from pardem.config import DeckError
 from pardem.drivers import cli
-from pardem.drivers.runner import GranularDriver, run_protocol
+from pardem.drivers.runner import GranularDriver, protocol_main
 from pardem.engine import granular
 from pardem.io import biaxial_plot
-from pardem.parallel.communicator import Communicator
 from pardem.physics import shear_band
 from pardem.protocols import biaxial
 from pardem.protocols import granular_output as gout
@@ -60,18 +59,14 @@ CEMENT_KEYS = ("initial", "keys", "strain", "step")
 
 
 def parser(comm=None):
-    return cli.driver_parser("python -m pardem.drivers.biaxial", __doc__.split("\n\n")[0], biaxial.SCHEMA,
-                             comm=comm, steps_help=gout.STEPS_HELP,
-                             restart_help=gout.restart_help(RESTART_MAY_CHANGE),
-                             out_default="runs/biaxial-<timestamp>",
-                             deck_title="deck keys and defaults (drivers/biaxial.toml)",
-                             epilog="outputs: DIR/biaxial.csv, biaxial.h5, biaxial.json, biaxial.png, "
-                                    "localisation-P-W.png/.vtu, cements-P.png/.vtu (cemented), checkpoints/, paraview/")
+    return cli.granular_parser("biaxial", __doc__, biaxial.SCHEMA, RESTART_MAY_CHANGE, comm=comm,
+                               deck_title="deck keys and defaults (drivers/biaxial.toml)",
+                               outputs="DIR/biaxial.csv, biaxial.h5, biaxial.json, biaxial.png, "
+                                       "localisation-P-W.png/.vtu, cements-P.png/.vtu (cemented), checkpoints/, paraview/")
 
 
 def main(argv=None):
-    comm = Communicator()
-    return cli.run_driver(comm, lambda comm, args: run_protocol(comm, args, Biaxial()), parser(comm).parse_args(argv))
+    return protocol_main(Biaxial, parser, argv)
 
 
 def fresh_state(index, pc):

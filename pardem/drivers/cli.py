@@ -33,6 +33,7 @@ from pardem.io.records import header_difference, read_records, read_study_header
 from pardem.parallel import layout, watchdog
 from pardem.parallel.communicator import exit_now, report_and_abort
 from pardem.protocols import deck_checks
+from pardem.protocols import granular_output as gout
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_UNSTABLE, EXIT_OUTPUT, EXIT_NOT_MEASURED = 0, 1, 2, 3, 4, 5
 EXIT_SIGNAL = 128              # + the signal number
@@ -83,6 +84,19 @@ def driver_parser(prog, description, schema, run_options=True, comm=None,
                                             "checkpoint and parallel settings")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
+
+
+def granular_parser(name, doc, schema, restart_may_change, outputs, comm=None,
+                    deck_title="deck keys and defaults", steps_note=""):
+    """``driver_parser`` of the granular driver ``name`` (``python -m pardem.drivers.<name>``, the
+    first paragraph of its ``doc``, output ``runs/<name>-<timestamp>``): the granular ``--steps``
+    help (then ``steps_note``), the ``--restart`` help of ``restart_may_change``, and ``outputs``
+    listed in the epilog."""
+    return driver_parser(f"python -m pardem.drivers.{name}", doc.split("\n\n")[0], schema, comm=comm,
+                         steps_help=gout.STEPS_HELP + steps_note,
+                         restart_help=gout.restart_help(restart_may_change),
+                         out_default=f"runs/{name}-<timestamp>", deck_title=deck_title,
+                         epilog=f"outputs: {outputs}")
 
 
 def run_driver(comm, run, args):

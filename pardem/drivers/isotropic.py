@@ -45,9 +45,8 @@ import sys
 import pardem
 from pardem.config import DeckError
 from pardem.drivers import cli
-from pardem.drivers.runner import GranularDriver, run_protocol
-from pardem.parallel.communicator import Communicator
-from pardem.protocols import granular_output as gout
+from pardem.drivers.runner import GranularDriver, protocol_main
+from pardem.io.figures import pyplot
 from pardem.protocols import isotropic as iso
 
 # deck keys a restart may change besides [output] and [checkpoint] (the rest is the physics)
@@ -56,20 +55,18 @@ RESTART_MAY_CHANGE = ("run.progress_seconds", "run.watchdog_seconds", "run.slab_
 
 
 def parser(comm=None):
-    p = cli.driver_parser("python -m pardem.drivers.isotropic", __doc__.split("\n\n")[0], iso.SCHEMA,
-                          comm=comm, steps_help=(gout.STEPS_HELP + "; the run stops at the first equilibrium check "
-                                                 "(every preparation.check_every steps) at or after step N"),
-                          restart_help=gout.restart_help(RESTART_MAY_CHANGE), out_default="runs/isotropic-<timestamp>",
-                          epilog="outputs: DIR/isotropic.json, isotropic.csv, isotropic.h5, isotropic.png, "
-                                 "force_distribution.png, checkpoints/, paraview/")
+    p = cli.granular_parser("isotropic", __doc__, iso.SCHEMA, RESTART_MAY_CHANGE, comm=comm,
+                            steps_note="; the run stops at the first equilibrium check (every "
+                                       "preparation.check_every steps) at or after step N",
+                            outputs="DIR/isotropic.json, isotropic.csv, isotropic.h5, isotropic.png, "
+                                    "force_distribution.png, checkpoints/, paraview/")
     p.add_argument("--pressures", metavar="P1,P2,...",
                    help="target pressures p0 [Pa], comma-separated (overrides preparation.pressures)")
     return p
 
 
 def main(argv=None):
-    comm = Communicator()
-    return cli.run_driver(comm, lambda comm, args: run_protocol(comm, args, Isotropic()), parser(comm).parse_args(argv))
+    return protocol_main(Isotropic, parser, argv)
 
 
 def _pressures(text):
@@ -173,20 +170,9 @@ def format_table(rows):
     return "\n".join(lines)
 
 
-def _pyplot(name):
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        sys.stderr.write(f"pardem: note: matplotlib is not installed, so no {name}\n")
-        return None
-    return plt
-
-
 def plot_series(rows, path):
     """``isotropic.png``: p / p0 and the solid fraction against the step, one colour per pressure."""
-    plt = _pyplot(os.path.basename(path))
+    plt = pyplot(os.path.basename(path))
     if plt is None or not rows:
         return False
     fig, ax = plt.subplots(2, 1, figsize=(6, 6), sharex=True)
@@ -211,7 +197,7 @@ def plot_series(rows, path):
 
 
 def _plot(details, path):
-    plt = _pyplot("force_distribution.png")
+    plt = pyplot("force_distribution.png")
     if plt is None or not details:
         return False
     fig, ax = plt.subplots(figsize=(6, 4))

@@ -41,9 +41,8 @@ import numpy as np
 import pardem
 from pardem.config import DeckError
 from pardem.drivers import cli
-from pardem.drivers.runner import GranularDriver, run_protocol
+from pardem.drivers.runner import GranularDriver, protocol_main
 from pardem.io import response_plot
-from pardem.parallel.communicator import Communicator
 from pardem.protocols import granular_output as gout
 from pardem.protocols import isotropic as iso
 from pardem.protocols import response
@@ -53,20 +52,16 @@ RESTART_MAY_CHANGE = ("run.progress_seconds", "run.watchdog_seconds", "run.slab_
 
 
 def parser(comm=None):
-    return cli.driver_parser("python -m pardem.drivers.response", __doc__.split("\n\n")[0], response.SCHEMA,
-                             comm=comm, steps_help=(gout.STEPS_HELP + "; in a relaxation the run stops at "
-                                                    "the first check (every relax.check_every steps) at or "
-                                                    "after step N"),
-                             restart_help=gout.restart_help(RESTART_MAY_CHANGE),
-                             out_default="runs/response-<timestamp>",
-                             deck_title="deck keys and defaults (drivers/response.toml)",
-                             epilog="outputs: DIR/response.json, response.csv, response.h5, response.png, "
-                                    "response_vtk/response.pvd, checkpoints/, paraview/")
+    return cli.granular_parser("response", __doc__, response.SCHEMA, RESTART_MAY_CHANGE, comm=comm,
+                               deck_title="deck keys and defaults (drivers/response.toml)",
+                               steps_note="; in a relaxation the run stops at the first check (every "
+                                          "relax.check_every steps) at or after step N",
+                               outputs="DIR/response.json, response.csv, response.h5, response.png, "
+                                       "response_vtk/response.pvd, checkpoints/, paraview/")
 
 
 def main(argv=None):
-    comm = Communicator()
-    return cli.run_driver(comm, lambda comm, args: run_protocol(comm, args, Response()), parser(comm).parse_args(argv))
+    return protocol_main(Response, parser, argv)
 
 
 class Response(GranularDriver):

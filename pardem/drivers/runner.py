@@ -2,7 +2,8 @@
 
 A driver describes its protocol with a ``ProtocolDriver`` (deck schema, how to build the case, how
 to restore it from a checkpoint, what one run executes, what its summary holds) and calls
-``run_protocol``; everything else is the same for every driver and lives here, in this order:
+``run_protocol`` (its ``main`` is ``protocol_main``); everything else is the same for every driver
+and lives here, in this order:
 
 1. the deck: ``--config``/``--set`` (on ``--restart``, the checkpoint's deck is the base), the
    protocol's checks, the restart policy (a restart may change only the keys the protocol lists);
@@ -34,6 +35,7 @@ from pardem.io.paraview import ParaViewWriter
 from pardem.io.progress import Progress
 from pardem.io.summary import write_json
 from pardem.engine import granular
+from pardem.parallel.communicator import Communicator
 from pardem.protocols import granular_output as gout
 from pardem.protocols.granular_output import Every, StepLimit
 
@@ -115,6 +117,14 @@ class ProtocolDriver:
         """Rank 0, after the summary is written: plots and the printed result; returns the exit
         code (``cli.EXIT_OK`` or ``cli.EXIT_NOT_MEASURED``)."""
         return cli.EXIT_OK
+
+
+def protocol_main(driver_type, parser, argv=None):
+    """A driver's ``main``: ``parser(comm)`` reads ``argv``, then ``run_protocol`` with a new
+    ``driver_type()`` under ``cli.run_driver``; returns the exit code."""
+    comm = Communicator()
+    return cli.run_driver(comm, lambda comm, args: run_protocol(comm, args, driver_type()),
+                          parser(comm).parse_args(argv))
 
 
 def run_protocol(comm, args, protocol):

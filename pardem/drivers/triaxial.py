@@ -28,14 +28,12 @@ Exit codes: 0 done, 1 unexpected error (all ranks stop), 2 bad input (one line n
 3 the run became unstable.
 """
 import csv
-import sys
 import time
 
 import pardem
 from pardem.drivers import cli
-from pardem.drivers.runner import GranularDriver, run_protocol
-from pardem.parallel.communicator import Communicator
-from pardem.protocols import granular_output as gout
+from pardem.drivers.runner import GranularDriver, protocol_main
+from pardem.io.figures import pyplot
 from pardem.protocols import triaxial
 
 # deck keys a restart may change besides [output] and [checkpoint] (the rest is the physics)
@@ -43,18 +41,14 @@ RESTART_MAY_CHANGE = ("run.progress_seconds", "run.watchdog_seconds", "run.slab_
 
 
 def parser(comm=None):
-    return cli.driver_parser("python -m pardem.drivers.triaxial", __doc__.split("\n\n")[0], triaxial.SCHEMA,
-                             comm=comm, steps_help=gout.STEPS_HELP,
-                             restart_help=gout.restart_help(RESTART_MAY_CHANGE),
-                             out_default="runs/triaxial-<timestamp>",
-                             deck_title="deck keys and defaults (drivers/triaxial_cemented.toml)",
-                             epilog="outputs: DIR/triaxial.csv, triaxial.h5, triaxial.json, triaxial.png, "
-                                    "checkpoints/, paraview/")
+    return cli.granular_parser("triaxial", __doc__, triaxial.SCHEMA, RESTART_MAY_CHANGE, comm=comm,
+                               deck_title="deck keys and defaults (drivers/triaxial_cemented.toml)",
+                               outputs="DIR/triaxial.csv, triaxial.h5, triaxial.json, triaxial.png, "
+                                       "checkpoints/, paraview/")
 
 
 def main(argv=None):
-    comm = Communicator()
-    return cli.run_driver(comm, lambda comm, args: run_protocol(comm, args, Triaxial()), parser(comm).parse_args(argv))
+    return protocol_main(Triaxial, parser, argv)
 
 
 class Triaxial(GranularDriver):
@@ -142,12 +136,8 @@ def read_series(path):
 
 
 def plot(path, rows, pc):
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        sys.stderr.write("pardem: note: matplotlib is not installed, so no triaxial.png\n")
+    plt = pyplot("triaxial.png")
+    if plt is None:
         return
     ea = [100 * r["eps_axial"] for r in rows]
     fig, ax = plt.subplots(3, 1, figsize=(6, 8), sharex=True)

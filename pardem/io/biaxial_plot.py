@@ -18,25 +18,14 @@
 
 matplotlib is optional: without it the PNGs are skipped with a note (``False`` returned).
 """
-import sys
-
 import numpy as np
 
-
-def _pyplot():
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        return plt
-    except ImportError:
-        sys.stderr.write("pardem: note: matplotlib is not installed, so no biaxial figures\n")
-        return None
+from pardem.io.figures import pyplot
 
 
 def curves(path, rows):
     """q / pc and eps_v [%] against eps_a [%] per confining pressure (``rows``: the series)."""
-    plt = _pyplot()
+    plt = pyplot("biaxial figures")
     if plt is None or not rows:
         return False
     cemented = any(r.get("cements_intact", 0) + r.get("cements_broken", 0) > 0 for r in rows)
@@ -72,7 +61,7 @@ def curves(path, rows):
 def maps(path, field, radius, title=""):
     """Incremental shear strain [-] and grain rotation increment [rad] of a window at the grains'
     centres ``field["x"]`` [m] (drawn in mm, marker area ~ radius^2)."""
-    plt = _pyplot()
+    plt = pyplot("biaxial figures")
     if plt is None:
         return False
     x = np.asarray(field["x"]) * 1e3
@@ -127,7 +116,7 @@ def cement_map(path, x, radius, ends, strain, title="", band=None):
     ``radius`` [n] [m] as grey disks, each broken cement a segment between its pair's centres
     ``ends`` [m, 2, 2] [m], coloured by the axial strain at which it broke ``strain`` [m] (drawn
     in mm and %); ``band``: a shear band (``centre``, ``direction``) drawn as a dashed line."""
-    plt = _pyplot()
+    plt = pyplot("biaxial figures")
     if plt is None:
         return False
     from matplotlib.collections import EllipseCollection, LineCollection

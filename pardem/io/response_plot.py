@@ -16,26 +16,16 @@ collection (``timestep`` = simulation time [s]; the static state last). Open ``r
 ParaView, Glyph > Sphere scaled by ``radius``, colour by ``dsigma_yy``.
 """
 import os
-import sys
 
 import meshio
 import numpy as np
 
-
-def _pyplot():
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        return plt
-    except ImportError:
-        sys.stderr.write("pardem: note: matplotlib is not installed, so no response.png\n")
-        return None
+from pardem.io.figures import pyplot
 
 
 def plot(path, result):
     """Draw ``response.png`` from the response driver's ``result`` (the summary's fields)."""
-    plt = _pyplot()
+    plt = pyplot("response.png")
     if plt is None:
         return
     st = result["static"]

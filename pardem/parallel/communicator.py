@@ -12,6 +12,7 @@ import numpy as np
 
 
 ABORT_GRACE_SECONDS = 1.0
+IDLE_POLL_SECONDS = 0.05    # wait_for_all's sleep between polls: 50 ms late at most, for cases of minutes
 
 
 class Communicator:
@@ -98,6 +99,19 @@ class Communicator:
     def barrier(self):
         if self.size > 1:
             self.comm.Barrier()
+
+    def wait_for_all(self, poll_seconds=IDLE_POLL_SECONDS):
+        """Collective: return once every rank has called it, sleeping between ``Test`` polls of an
+        ``Ibarrier``, so a rank that finished its cases early uses no core: MPICH's blocking
+        collectives busy-poll (a waiting ``Barrier``, or the root of a ``Gather``, used a whole core).
+
+        Call it right before a collective that idle ranks would otherwise wait in. A rank that fails
+        meanwhile ends the job through ``abort`` (``MPI_Abort``), which kills the waiting ranks too."""
+        if self.size == 1:
+            return
+        request = self.comm.Ibarrier()
+        while not request.Test():
+            time.sleep(poll_seconds)
 
     def started_by_srun(self):
         """Collective: True if Slurm's ``srun`` started every rank itself (one Slurm task per rank,

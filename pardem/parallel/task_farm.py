@@ -32,6 +32,7 @@ def run_cases(comm, cases, run_one, finished=None, key=None, on_record=None):
         if on_record is not None:
             on_record(record)
         mine.append((k, record))
+    comm.wait_for_all()        # a rank done early sleeps here, not in the gather's busy poll
     parts = comm.gather(mine)
     if not comm.is_root:
         return None

@@ -407,6 +407,7 @@ def run_study(comm, case_comm, deck, plan, progress=None, packings=None, finishe
                 progress(done, total, rec)
         done_with = (groups[g][0].kind, groups[g][0].realisation)   # a group holds one realisation
         packings = {k: v for k, v in packings.items() if k[:2] != done_with}
+    comm.wait_for_all()        # a rank done early sleeps here, not in the gather's busy poll
     gathered = comm.gather(records)
     if not comm.is_root:
         return None

@@ -333,6 +333,7 @@ def farm_measure(comm, deck, plan, young, radius_ratio, packings):
             except InstabilityError as err:
                 mine[k] = {"unstable": f"(realisation {k}, seed {seed}) {err}"}
             mine[k]["rank"] = comm.rank
+    comm.wait_for_all()        # a rank done early sleeps here, not in the allgather's busy poll
     gathered = comm.allgather(mine)
     merged = {}
     for part in gathered:
