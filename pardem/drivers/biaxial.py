@@ -17,7 +17,8 @@ membrane_grains, n_grains, cements_intact, cements_fading, cements_broken, broke
 kinetic_energy [J]), ``DIR/biaxial.json`` (per pressure: the
 preparation, the sample, peak and residual friction angles, the dilatancy angle, the lateral
 stress error, and per localisation window the shear band (angle, width in mean diameters,
-centre) with the Mohr-Coulomb, Roscoe and Arthur predictions; the deck, ``finished``,
+centre, contrast, and whether the field is localised at all: ``shear_band.detect``) with the
+Mohr-Coulomb, Roscoe and Arthur predictions, printed side by side for a localised band; the deck, ``finished``,
 ``restarted_from``, ``checkpoints``, timings), ``DIR/biaxial.png`` (q / pc and eps_v against
 eps_a; cemented: the broken cements too), ``DIR/localisation-P-W.png`` (maps of the incremental shear strain and grain rotations of
 window W of pressure P) and ``DIR/localisation-P-W.vtu`` (the same fields for ParaView, with
@@ -27,7 +28,7 @@ the pair centres, coloured by the axial strain at rupture, over the grains at th
 ``DIR/cements-P.vtu`` (per grain the broken and intact cements, the broken cements as lines with
 their strain at rupture); the JSON's ``cements`` per pressure: cements at the start, broken at
 the end, the broken fraction at the peak and at the end, the share of broken cements in the last
-window's band against the band's share of all cements. The cement law keeps no rupture time, so
+localised window's band against the band's share of all cements. The cement law keeps no rupture time, so
 the strain at rupture is that of the first sample at which a cement was no longer intact
 (``biaxial.CementRecord``, resolution ``loading.strain / output.samples``);
 checkpoints in ``DIR/checkpoints`` and ParaView snapshots in ``DIR/paraview``
@@ -67,6 +68,18 @@ def parser(comm=None):
 
 def main(argv=None):
     return protocol_main(Biaxial, parser, argv)
+
+
+def band_line(window):
+    """One line on a localisation window's band: its angle beside the predictions when the field
+    is localised (``shear_band.detect``), else that no band formed."""
+    b, p = window["band"], window["predictions"]
+    head = f"  window to eps_a = {window['strain_end']:.3f}: "
+    if b is None or not b.get("localised"):
+        contrast = "" if b is None else f" (contrast {b.get('contrast', float('nan')):.2f} < {shear_band.LOCALISED_CONTRAST})"
+        return head + "no localised shear band" + contrast
+    return (head + f"band at {b['angle_deg']:.1f} deg, width {b['width_d']:.1f} d, contrast {b['contrast']:.1f}; "
+            f"Mohr-Coulomb {p['mohr_coulomb']:.1f}, Roscoe {p['roscoe']:.1f}, Arthur {p['arthur']:.1f} deg")
 
 
 def fresh_state(index, pc):
@@ -207,6 +220,8 @@ class Biaxial(GranularDriver):
                 progress.say(f"pc = {pc:.4g} Pa: phi_peak = {result['phi_peak_deg']:.2f} deg at eps_a = "
                              f"{result['strain_at_peak']:.4f}, phi_residual = {result['phi_residual_deg']:.2f} deg, "
                              f"psi_max = {result['psi_max_deg']:.2f} deg")
+                for w in result["windows"]:
+                    progress.say(band_line(w))
                 self.mem = self.platens = self.record = None
                 run.state["current"] = fresh_state(k + 1, pcs[k + 1] if k + 1 < len(pcs) else None)
 
@@ -227,7 +242,8 @@ class Biaxial(GranularDriver):
                 cur["windows"].append({"window": w, "strain_end": eps, "window_strain": deck["localisation"]["window"],
                                        "band": None if band is None else {k: band[k] for k in
                                                                           ("angle_deg", "width_d", "centre", "direction",
-                                                                           "peak", "background")},
+                                                                           "peak", "background", "contrast",
+                                                                           "localised")},
                                        "mean_abs_spin": float(np.mean(np.abs(field["spin"]))),
                                        "cements_broken": int(field["cements_broken"].sum() // 2),
                                        "files": [f"localisation-{cur['index']}-{w}.png", f"localisation-{cur['index']}-{w}.vtu"]})
@@ -256,7 +272,8 @@ class Biaxial(GranularDriver):
         radius = self._radii(run, gid)
         broken = np.searchsorted(gid, biaxial.key_pairs(rec.keys))            # rows [m, 2]
         every = np.searchsorted(gid, biaxial.key_pairs(rec.initial))
-        band = next((w["band"] for w in reversed(result["windows"]) if w["band"] is not None), None)
+        band = next((w["band"] for w in reversed(result["windows"]) if w["band"] is not None
+                     and w["band"].get("localised")), None)     # no band, no share in it
         if band is not None and len(rec.keys):
             d_mean = 2.0 * cur["geo"]["mean_radius"]
             in_broken = biaxial.band_share(0.5 * (x[broken[:, 0]] + x[broken[:, 1]]), band, d_mean)

@@ -87,8 +87,13 @@ def maps(path, field, radius, title=""):
         axis.set_aspect("equal")
         axis.set_xlabel("x [mm]")
         axis.set_ylabel("y [mm]")
-    fig.suptitle(title + (f"; band at {band['angle_deg']:.1f} deg, width {band['width_d']:.1f} d"
-                          if band is not None else ""))
+    if band is None:
+        what = ""
+    elif band.get("localised", True):
+        what = f"; band at {band['angle_deg']:.1f} deg, width {band['width_d']:.1f} d"
+    else:
+        what = f"; not localised (best line dashed, contrast {band['contrast']:.2f})"
+    fig.suptitle(title + what)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
