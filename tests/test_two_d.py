@@ -35,6 +35,10 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SMALL = os.path.join(ROOT, "drivers", "isotropic_small.toml")
 R = 0.1e-3
 HERTZ = {"young": 72e9, "poisson": 0.2, "friction": 0.5, "restitution": 0.9}
+# the linear law: stiff springs (dt = 1e-8 s is a tenth of 2 sqrt(m / kn) = 1e-7 s), normal damping
+# and friction like HERTZ, no tangential dashpot (as Hertz-Mindlin: the grains keep turning)
+LINEAR = {"kn": 4e6, "kt": 3e6, "friction": 0.5, "restitution": 0.9, "tangential_damping": 0.0}
+LAWS = {"hertz_mindlin": HERTZ, "linear": LINEAR}
 FIELDS = ("x", "v", "w", "q", "f", "t")
 
 
@@ -59,14 +63,14 @@ def planar_packing(m=8, seed=5):
     return pos, radii, L, vel, spin
 
 
-def build(dim, pos, radii, L, vel, spin, comm=None, **kw):
+def build(dim, pos, radii, L, vel, spin, comm=None, law="hertz_mindlin", **kw):
     """The case in 2D (dimension = 2) or the 3D twin: the same cell, periodic in x, y only."""
     comm = Communicator() if comm is None else comm
     kw.setdefault("rate", (-40.0, -20.0, 0.0))
     if dim == 2:
-        return granular.build(comm, pos, radii, 2500.0, "hertz_mindlin", HERTZ, np.zeros(3), L, 1e-8, 0.05 * R,
+        return granular.build(comm, pos, radii, 2500.0, law, LAWS[law], np.zeros(3), L, 1e-8, 0.05 * R,
                               velocities=vel, angular_velocities=spin, dimension=2, **kw)
-    return granular.build(comm, pos, radii, 2500.0, "hertz_mindlin", HERTZ, np.array([0.0, 0.0, -0.5 * L[2]]),
+    return granular.build(comm, pos, radii, 2500.0, law, LAWS[law], np.array([0.0, 0.0, -0.5 * L[2]]),
                           L, 1e-8, 0.05 * R, periodic=(True, True, False), velocities=vel,
                           angular_velocities=spin, **kw)
 
@@ -125,12 +129,14 @@ def test_bad_dimensions_and_2d_arguments_are_refused():
 
 # -- 2D = the 3D run of the planar configuration --------------------------------------------------
 
-def test_2d_run_is_the_3d_run_of_the_planar_configuration_bit_for_bit():
-    """Frictional Hertz-Mindlin contacts (sliding and rolling), a cell compressing at an imposed
-    in-plane rate, 3000 steps: every field of the 2D run equals the 3D run's (no constraint), and
-    the 3D run stays planar by itself (its z forces, x/y torques and z positions are exactly 0)."""
+@pytest.mark.parametrize("law", sorted(LAWS))
+def test_2d_run_is_the_3d_run_of_the_planar_configuration_bit_for_bit(law):
+    """Frictional, damped contacts of either law (sliding and rolling), a cell compressing at an
+    imposed in-plane rate, 3000 steps: every field of the 2D run equals the 3D run's (no
+    constraint), and the 3D run stays planar by itself (its z forces, x/y torques and z positions
+    are exactly 0)."""
     pos, radii, L, vel, spin = planar_packing()
-    two, three = build(2, pos, radii, L, vel, spin), build(3, pos, radii, L, vel, spin)
+    two, three = build(2, pos, radii, L, vel, spin, law=law), build(3, pos, radii, L, vel, spin, law=law)
     assert dimension_of(two.sim) == 2 and dimension_of(three.sim) == 3
     two.sim.run(3000)
     three.sim.run(3000)
