@@ -640,3 +640,42 @@ def test_cemented_driver_on_2_ranks_breaks_cements_and_writes_the_map_and_summar
     assert np.all((strain >= 0.0) & (strain <= rows[-1]["eps_axial"] + 1e-12))
     assert int(mesh.point_data["cements_broken"].sum()) == 2 * broken[-1]
     assert int(mesh.point_data["cements_intact"].sum()) == 2 * int(rows[-1]["cements_intact"])
+
+
+def test_friction_and_dilatancy_angles_of_known_curves():
+    """``biaxial.angles`` on curves made from known angles: the Love-Weber sin phi rising to
+    sin 30 deg and settling at sin 25 deg; the platens' axial stress pc (1 + sin f) / (1 - sin f)
+    with f rising to 35 deg and settling at 28 deg (the boundary angles); eps_v falling linearly
+    with eps_a at d eps_v / d eps_a = -2 sin psi / (1 - sin psi), psi = 10 deg (sin psi = -d eps_v /
+    (2 d eps_a - d eps_v) inverted). Every angle back to round-off."""
+    from pardem.protocols import biaxial
+    ea = np.linspace(0.0, 0.1, 201)
+    rise = np.minimum(ea / 0.03, 1.0)
+    settle = np.clip((ea - 0.03) / 0.03, 0.0, 1.0)
+    phi = np.radians(30.0 * rise - 5.0 * settle)
+    f = np.radians(35.0 * rise - 7.0 * settle)
+    pc = 1e6
+    sp = np.sin(np.radians(10.0))
+    rows = [{"eps_axial": a, "eps_vol": -2.0 * sp / (1.0 - sp) * a, "sin_phi": np.sin(p), "pc": pc, "q": 0.0,
+             "sigma_axial_platens": pc * (1 + np.sin(b)) / (1 - np.sin(b)), "sigma_lateral": pc}
+            for a, p, b in zip(ea, phi, f)]
+    a = biaxial.angles(rows, residual_fraction=0.2)
+    assert a["phi_peak_deg"] == pytest.approx(30.0, abs=1e-9) and a["strain_at_peak"] == pytest.approx(0.03)
+    assert a["phi_residual_deg"] == pytest.approx(25.0, abs=1e-9)
+    assert a["phi_peak_boundary_deg"] == pytest.approx(35.0, abs=1e-9)
+    assert a["phi_residual_boundary_deg"] == pytest.approx(28.0, abs=1e-9)
+    assert a["psi_max_deg"] == pytest.approx(10.0, abs=1e-9)
+
+
+def test_a_gas_with_an_aspect_ratio_fills_its_rectangle_without_overlaps():
+    """``sample.aspect_ratio = 2``: the periodic cell's y edge is twice its x edge, the disks fill
+    it at the requested area fraction (to round-off), every centre lies in it, and no two disks
+    overlap across the periodic boundaries (brute force over all pairs, minimum image)."""
+    pos, r, edge = isotropic.gas(400, [1.1e-4, 0.9e-4], [0.5, 0.5], 0.3, 7, dim=2, aspect=2.0)
+    assert edge[1] == pytest.approx(2.0 * edge[0], rel=1e-15)
+    assert np.sum(np.pi * r**2) / (edge[0] * edge[1]) == pytest.approx(0.3, rel=1e-12)
+    assert np.all((pos[:, :2] >= 0.0) & (pos[:, :2] < edge[:2])) and np.all(pos[:, 2] == 0.0)
+    d = pos[:, None, :2] - pos[None, :, :2]
+    d -= edge[:2] * np.round(d / edge[:2])
+    gap = np.sqrt((d**2).sum(-1)) - (r[:, None] + r[None, :])
+    assert np.all(gap[np.triu_indices(len(r), 1)] >= 0.0)

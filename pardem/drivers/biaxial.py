@@ -76,8 +76,10 @@ def band_line(window):
     b, p = window["band"], window["predictions"]
     head = f"  window to eps_a = {window['strain_end']:.3f}: "
     if b is None or not b.get("localised"):
-        contrast = "" if b is None else f" (contrast {b.get('contrast', float('nan')):.2f} < {shear_band.LOCALISED_CONTRAST})"
-        return head + "no localised shear band" + contrast
+        why = "" if b is None else (f" (best line at {b['angle_deg']:.1f} deg: contrast "
+                                    f"{b.get('contrast', float('nan')):.2f}, strip rank {b.get('score', float('nan')):.3f} "
+                                    f"against {b.get('null_score', float('nan')):.3f} shuffled)")
+        return head + "no localised shear band" + why
     return (head + f"band at {b['angle_deg']:.1f} deg, width {b['width_d']:.1f} d, contrast {b['contrast']:.1f}; "
             f"Mohr-Coulomb {p['mohr_coulomb']:.1f}, Roscoe {p['roscoe']:.1f}, Arthur {p['arthur']:.1f} deg")
 
@@ -219,7 +221,9 @@ class Biaxial(GranularDriver):
                 run.state["results"].append(result)
                 progress.say(f"pc = {pc:.4g} Pa: phi_peak = {result['phi_peak_deg']:.2f} deg at eps_a = "
                              f"{result['strain_at_peak']:.4f}, phi_residual = {result['phi_residual_deg']:.2f} deg, "
-                             f"psi_max = {result['psi_max_deg']:.2f} deg")
+                             f"psi_max = {result['psi_max_deg']:.2f} deg; from the platens and pc: phi_peak = "
+                             f"{result['phi_peak_boundary_deg']:.2f} deg, phi_residual = "
+                             f"{result['phi_residual_boundary_deg']:.2f} deg")
                 for w in result["windows"]:
                     progress.say(band_line(w))
                 self.mem = self.platens = self.record = None
@@ -243,7 +247,7 @@ class Biaxial(GranularDriver):
                                        "band": None if band is None else {k: band[k] for k in
                                                                           ("angle_deg", "width_d", "centre", "direction",
                                                                            "peak", "background", "contrast",
-                                                                           "localised")},
+                                                                           "score", "null_score", "localised")},
                                        "mean_abs_spin": float(np.mean(np.abs(field["spin"]))),
                                        "cements_broken": int(field["cements_broken"].sum() // 2),
                                        "files": [f"localisation-{cur['index']}-{w}.png", f"localisation-{cur['index']}-{w}.vtu"]})

@@ -97,7 +97,8 @@ def biaxial_checks(deck):
     dt = deck["run"]["dt_fraction"] * rayleigh_time_step(r_min, s["density"], mat["shear_modulus"],
                                                          mat["poisson"])
     dc.check_normal(dt, "the time step", "s", "run.dt_fraction, material.shear_modulus, sample.density")
-    edge = math.sqrt(s["n"] * math.pi * r_min * r_min / (math.pi / math.sqrt(12.0)))
+    # the sample's height at the densest packing of the smallest grains (the shortest height)
+    edge = math.sqrt(s["n"] * math.pi * r_min * r_min / (math.pi / math.sqrt(12.0)) * s["aspect_ratio"])
     dc.check_rate(ld["strain_rate"], edge, math.sqrt(isotropic.young_modulus(mat) / s["density"]),
                   "loading.strain_rate", "material.shear_modulus, sample.density")
     steps = len(ld["confining_pressures"]) * (ld["strain"] / (ld["strain_rate"] * dt) + ld["settle_steps"]
@@ -116,7 +117,10 @@ def biaxial_checks(deck):
 
 SCHEMA = Schema({
     "sample": {**ISO["sample"], "n": _default("sample", "n", 10000),
-               "radii": _default("sample", "radii", [0.11e-3, 0.09e-3])},
+               "radii": _default("sample", "radii", [0.11e-3, 0.09e-3]),
+               "aspect_ratio": Field(1.0, number(0.25, 4.0, lo_open=False, hi_open=False),
+                                     "height over width of the periodic cell the sample is prepared in "
+                                     "(the servo compresses it isotropically: the sample keeps it)")},
     "material": ISO["material"],
     "preparation": ISO["preparation"],
     "equilibrium": ISO["equilibrium"],
@@ -447,10 +451,19 @@ def peak_index(rows):
 
 
 def angles(rows, residual_fraction=0.2):
-    """Peak and residual friction angles and the largest dilatancy angle [deg] of one loading."""
+    """Peak and residual friction angles and the largest dilatancy angle [deg] of one loading.
+
+    ``phi_*`` from the sample's Love-Weber stresses (``sin_phi``); ``phi_*_boundary`` as a laboratory
+    test measures them, from the platens' axial stress and the membrane's pressure pc
+    (``(sigma_axial_platens - pc) / (sigma_axial_platens + pc)``). They differ by the rigid platens'
+    end restraint, which raises the sample's mean lateral stress above pc."""
     ea = np.array([r["eps_axial"] for r in rows])
     ev = np.array([r["eps_vol"] for r in rows])
     sp = np.clip(np.array([r["sin_phi"] for r in rows]), -1.0, 1.0)
+    sab = np.array([r["sigma_axial_platens"] for r in rows])
+    pc = np.array([r["pc"] for r in rows])
+    spb = np.clip((sab - pc) / (sab + pc), -1.0, 1.0)
+    kb = int(np.argmax(spb))
     k = peak_index(rows)
     last = ea >= (1.0 - residual_fraction) * ea[-1]
     w = max(1, len(rows) // 20)
@@ -461,6 +474,8 @@ def angles(rows, residual_fraction=0.2):
     return {"phi_peak_deg": float(np.degrees(np.arcsin(sp[k]))), "strain_at_peak": float(ea[k]),
             "q_peak": float(rows[k]["q"]),
             "phi_residual_deg": float(np.degrees(np.arcsin(np.mean(sp[last])))),
+            "phi_peak_boundary_deg": float(np.degrees(np.arcsin(spb[kb]))), "strain_at_peak_boundary": float(ea[kb]),
+            "phi_residual_boundary_deg": float(np.degrees(np.arcsin(np.mean(spb[last])))),
             "psi_max_deg": float(np.degrees(np.arcsin(np.clip(sin_psi[j], -1.0, 1.0)))),
             "strain_at_psi_max": float(ea[w:][ok][j]) if ok.any() else 0.0,
             "final_eps_vol": float(ev[-1]),

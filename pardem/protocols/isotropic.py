@@ -298,20 +298,22 @@ def species_radii(n, radii, fractions, rng):
     return r[rng.permutation(n)]
 
 
-def gas(n, radii, fractions, solid_fraction, seed, dim=3):
-    """Random non-overlapping centres [n, 3] in a periodic cube, the radii [n] and the edge [m].
+def gas(n, radii, fractions, solid_fraction, seed, dim=3, aspect=1.0):
+    """Random non-overlapping centres [n, 3] in a periodic box, the radii [n] and the edges [3] [m].
 
     Random sequential addition: each sphere is drawn uniformly until it overlaps none of those
     placed (checked in the 27 neighbouring cells of a grid of cell size >= 2 R_max). ``dim = 2``:
-    disks in a periodic square at the area fraction ``solid_fraction``, centres at z = 0 (9 cells).
+    disks in a periodic rectangle at the area fraction ``solid_fraction``, centres at z = 0 (9
+    cells; the z edge is then unused). ``aspect``: the y edge over the others (1: a cube or square).
     """
     rng = np.random.default_rng(seed)
     r = species_radii(n, radii, fractions, rng)
+    scale = np.array([1.0, aspect, 1.0])
     if dim == 2:
-        edge = np.sqrt(np.sum(np.pi * r**2) / solid_fraction)
+        edge = np.sqrt(np.sum(np.pi * r**2) / solid_fraction / aspect) * scale
     else:
-        edge = (np.sum(4.0 / 3.0 * np.pi * r**3) / solid_fraction) ** (1.0 / 3.0)
-    m = max(1, int(edge // (2.0 * r.max())))
+        edge = (np.sum(4.0 / 3.0 * np.pi * r**3) / solid_fraction / aspect) ** (1.0 / 3.0) * scale
+    m = np.maximum(1, (edge // (2.0 * r.max())).astype(int))
     size = edge / m
     grid = {}
     pos = np.zeros((n, 3))
@@ -319,13 +321,13 @@ def gas(n, radii, fractions, solid_fraction, seed, dim=3):
     for k in range(n):
         for _ in range(100000):
             x = np.zeros(3)
-            x[:dim] = rng.uniform(0.0, edge, dim)
+            x[:dim] = rng.uniform(0.0, edge[:dim], dim)
             c = np.floor(x / size).astype(int) % m
             near = [q for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in zs
-                    for q in grid.get(((c[0] + dx) % m, (c[1] + dy) % m, (c[2] + dz) % m), ())]
+                    for q in grid.get(((c[0] + dx) % m[0], (c[1] + dy) % m[1], (c[2] + dz) % m[2]), ())]
             if near:
                 d = pos[near] - x
-                d[:, :dim] -= edge * np.round(d[:, :dim] / edge)
+                d[:, :dim] -= edge[:dim] * np.round(d[:, :dim] / edge[:dim])
                 if np.any(np.einsum("ij,ij->i", d, d) < (r[near] + r[k]) ** 2):
                     continue
             pos[k] = x
@@ -574,14 +576,15 @@ def build_gas(comm, deck):
     dim = dimension(deck)
     data = None
     if comm.is_root:
-        data = gas(s["n"], s["radii"], s["fractions"], s["gas_solid_fraction"], s["seed"], dim=dim)
+        data = gas(s["n"], s["radii"], s["fractions"], s["gas_solid_fraction"], s["seed"], dim=dim,
+                   aspect=s.get("aspect_ratio", 1.0))
     pos, radii, edge = comm.bcast(data)
     params = contact_params(mat, 0.0, mat["restitution"])
     dt_c = granular.critical_time_step("hertz_mindlin", hertz_mindlin.Params(**params), radii,
                                        s["density"])
     dt = run["dt_fraction"] * dt_c
     case = granular.build(comm, pos, radii, s["density"], "hertz_mindlin", params, np.zeros(3),
-                          np.full(3, edge), dt, skin(deck, radii),
+                          edge, dt, skin(deck, radii),
                           viscous_damping=deck["preparation"]["damping"],
                           slab_axis="xyz".index(run["slab_axis"]), dimension=dim)
     return case
