@@ -40,6 +40,9 @@ def test_default_case_gives_analytic_modulus(tmp_path):
         assert key in s
     # the compilation is timed apart from the steps, and both lie inside the job's wall time
     assert 0.0 < s["compile_seconds"] and s["compile_seconds"] + s["run_seconds"] <= s["wall_seconds"]
+    # peak memory per rank in MiB: Numba and llvmlite alone keep more than 50 MiB resident, and the
+    # machine has 24 GiB (a KiB or byte figure would fall outside)
+    assert len(s["peak_rss_mib"]) == s["n_ranks"] and all(50 < m < 24 * 1024 for m in s["peak_rss_mib"])
     series = read_series(out / "series.csv")
     assert list(series) == list(SERIES_COLUMNS)
     t = np.array(series["time"])

@@ -33,7 +33,6 @@ Exit codes: 0 done (or stopped by --steps), 1 unexpected error (all ranks stop),
 line naming the field), 3 the run became unstable, 128 + N stopped by signal N (checkpoint written).
 """
 import os
-import resource
 import time
 
 import numpy as np
@@ -183,9 +182,6 @@ class Response(GranularDriver):
         run.state["stage"] = "done"
 
     def summary(self, run):
-        # collective: the peak resident memory of every rank (ru_maxrss: KiB on Linux) of this
-        # process (after a restart: of the restarted run only)
-        rss = run.comm.allgather(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
         clock = (self.clock.state(run.sim.step_count) if self.clock is not None
                  else run.state.get("clock") or {"seconds": {}, "steps": {}})
         n = int(run.comm.sum(run.sim.elements.n_owned))
@@ -193,7 +189,7 @@ class Response(GranularDriver):
                     for k in clock["seconds"]}
         return {"result": run.state.get("result"), "preparation": run.state.get("preparation"),
                 "stage": run.state.get("stage"), "respond_stage": (run.state.get("respond") or {}).get("stage"),
-                "n_grains": n, "peak_rss_mib": rss,
+                "n_grains": n,
                 "stage_seconds": clock["seconds"], "stage_steps": clock["steps"], "seconds_per_step": per_step,
                 # grains x steps / s (the preparation has the unreplicated sample.n grains)
                 "element_steps_per_second": {k: ((run.deck["sample"]["n"] if k == "prepare" else n)

@@ -21,6 +21,7 @@ and lives here, in this order:
 """
 import contextlib
 import os
+import resource
 import time
 from dataclasses import dataclass, field
 
@@ -178,9 +179,13 @@ def run_protocol(comm, args, protocol):
         if final:
             run.writer.write(run.sim)
         result = protocol.summary(run)
+        # the peak resident memory of every rank [MiB] (ru_maxrss: KiB on Linux; after a restart,
+        # of the restarted run's processes only)
+        rss = comm.allgather(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
         code = cli.EXIT_OK
         if comm.is_root:
             summary = _common_summary(run, protocol.name)
+            summary["peak_rss_mib"] = rss
             summary.update(result)
             write_json(os.path.join(run.out, protocol.summary_name), summary)
             if run.interrupted is None:
