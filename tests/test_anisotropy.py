@@ -160,10 +160,14 @@ def test_unknown_law_is_refused():
 
 @pytest.mark.parametrize("law", ["TOR", "hankinson", "linear", "spherical_normalised"])
 def test_bounded_and_isotropic(law):
-    """These laws interpolate: values stay within [min, max] and an isotropic input stays isotropic."""
+    """These laws interpolate: values stay within [min, max], and so an isotropic input stays
+    isotropic, through the law's own formula (``LAWS[law]``: ``evaluate`` returns an equal triple's
+    value without it). Tolerance 1e-14: a few roundings of 1.1e-16 in each formula."""
     rng = np.random.default_rng(13)
     F = lrt_frame(30.0)
     u = random_dirs(rng, 500)
-    v = evaluate(law, u, F, VALS)
-    assert np.all(v >= min(VALS) * (1 - 1e-14)) and np.all(v <= max(VALS) * (1 + 1e-14))
-    np.testing.assert_allclose(evaluate(law, u, F, 5.0e8), 5.0e8, rtol=1e-13)
+    c, theta, phi = direction_angles(u, F)
+    for vals in (VALS, (5.0e8, 5.0e8, 5.0e8)):
+        v = LAWS[law](c, theta, phi, *vals)
+        assert np.all(v >= min(vals) * (1 - 1e-14)) and np.all(v <= max(vals) * (1 + 1e-14)), vals
+    np.testing.assert_array_equal(evaluate(law, u, F, VALS), LAWS[law](c, theta, phi, *VALS))

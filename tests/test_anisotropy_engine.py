@@ -100,8 +100,8 @@ def test_laws_build_different_compact_domains(packing):
 
 
 def _modulus(case_deck, packing):
-    """Quasi-static E_x [Pa]: the plate speed makes the loading last 4 axial wave transits (slope within
-    about 2 % of its slow limit, pardem.protocols.anisotropy_study: far below the factor tested)."""
+    """Quasi-static E_x [Pa] and the case: the plate speed makes the loading last 4 axial wave transits
+    (slope within about 2 % of its slow limit, pardem.protocols.anisotropy_study)."""
     comm = Communicator()
     probe = build_case(comm, case_deck, packing=packing)
     strain = case_deck["loading"]["strain"]
@@ -110,20 +110,26 @@ def _modulus(case_deck, packing):
     sampler = SeriesSampler(case, max(1, case.n_steps // 100))
     sampler(case.sim)
     case.sim.run(case.n_steps, operations=[sampler])
-    return measure(case)["young_modulus"]
+    return measure(case)["young_modulus"], case
 
 
 @pytest.mark.slow
 def test_spherical_domain_is_stiffer_than_normalised(packing):
-    """Each bond of W's spherical law is the normalised law's times cL + cR + cT in modulus and radius
-    (checked above), so the compact domain must be stiffer along x; the factor is bounded by the bond
-    factors: ka scales by s^3 and kb by s^5 with s in [1, sqrt 3], so E_sph / E_norm lies in
-    (1, 3^2.5]; the lower bound 1.2 leaves room for the bonds near the axes (s close to 1). Measured
-4.5 (tilt 20 deg, E_L/E_T = 25, 8 transits)."""
-    E_norm = _modulus(deck("spherical_normalised"), packing)
-    E_sph = _modulus(deck("spherical"), packing)
-    print(f"E_x spherical {E_sph:.4g} Pa, normalised {E_norm:.4g} Pa, ratio {E_sph / E_norm:.3f}")
-    assert 1.2 < E_sph / E_norm < 3.0 ** 2.5
+    """Each bond of W's spherical law is the normalised law's with modulus and radius times
+    s = cL + cR + cT in [1, sqrt 3] (checked above): its axial stiffness E pi r^2 / L times s^3, its
+    bending and torsion stiffnesses (E r^4) times s^5, and the auto plate stiffness (the mean axial
+    one) times a mean of s^3. Every term of the network's elastic energy at a given displacement is
+    thus the normalised one's times a factor in [min s^3, max s^5] over the bonds, and so is its
+    minimum at the imposed plate displacement: the stiffness ratio lies in [min s^3, max s^5], and so
+    does E_sph / E_norm (the fitted interior strain is the plates' less their boundary layers in both),
+    widened by each slope's 2 % loading-rate error. Measured 4.58 in [1.04, 15.6] (tilt 20 deg)."""
+    E_norm, _ = _modulus(deck("spherical_normalised"), packing)
+    E_sph, case = _modulus(deck("spherical"), packing)
+    s = np.abs(_chords(case) @ lrt_frame(20.0).T).sum(axis=1)
+    lo, hi = s.min() ** 3 * 0.98 / 1.02, s.max() ** 5 * 1.02 / 0.98
+    print(f"E_x spherical {E_sph:.4g} Pa, normalised {E_norm:.4g} Pa, ratio {E_sph / E_norm:.3f} "
+          f"in [{lo:.3f}, {hi:.3f}]")
+    assert lo < E_sph / E_norm < hi
 
 
 @pytest.mark.parametrize("law", ALL_LAWS)

@@ -24,8 +24,7 @@ from pardem.config import load_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.drivers import anisotropy
 from pardem.io.records import read_records
-from pardem.protocols.compression import build_case
-from pardem.engine.state import FLAG_NEAR_PLATE
+from pardem.protocols.compression import build_case, static_modulus
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -43,68 +42,13 @@ XI_KEYS = {"xi_deg", "E_mean", "E_std", "E_hankinson"}
 DYNAMIC_VS_STATIC = 0.03
 # The finite lattice's free staircase side faces carry less than the bulk: a boundary layer worth a
 # roughly fixed number of rows, so the deviation from the infinite lattice scales as 1/W (W rows
-# across). Static solves at 45 deg: -12.6 %, -5.6 %, -2.6 % for W = 9, 19, 39 (1.13, 1.06, 1.03 rows);
-# at 20 deg the staircase pattern makes it fluctuate with W: 0.58, 1.44, 0.71, 1.0, 0.26, 0.95, 0.78,
-# 0.86 rows for W = 9, 11, 13, 15, 19, 21, 25, 39. Allowed: BOUNDARY_ROWS / W, 20 % above the largest.
+# across). Static solves at 45 deg: -12.6 %, -5.6 %, -2.6 % for W = 9, 19, 39 (1.13, 1.06, 1.03 rows;
+# there the faces are lattice diagonals and the width the bulk's homogeneous state carries gives all
+# but the corners' part, test_off_axis_45_is_the_lattices_static_response); at 20 deg the staircase
+# pattern changes with W and so does the layer: 0.58, 1.44, 0.71, 1.0, 0.26, 0.95, 0.78, 0.86 rows for
+# W = 9, 11, 13, 15, 19, 21, 25, 39. No closed form covers every angle: allowed BOUNDARY_ROWS / W,
+# 20 % above the largest layer of that scatter over W (the 20 deg staircases), at every angle.
 BOUNDARY_ROWS = 1.75
-
-
-def static_modulus(case, strain=1e-4, touch=1e-9):
-    """Young's modulus [Pa] of ``case``'s bonded domain between its linear frictionless plates from
-    the static linear response (an independent computation of what ``measure`` finds dynamically).
-
-    Stiffness of each bond: the textbook 12 x 12 Euler-Bernoulli frame element (axial ``ka = E S/L0``,
-    torsion ``kt``, bending ``12, 6, 4, 2 E I / L^n``) rotated to the bond's chord; each element touching
-    a plate is tied to it by a spring ``plate_stiffness`` along the load (frictionless: nothing across),
-    the moving plate displaced by ``strain * length``; the rigid motions across the load are held by
-    springs 1e-9 of the plates'. ``touch`` [m]: the gap below which an element counts as touching a
-    plate, tied to it without a gap (compact faces are flat to about 1e-3 R and the run closes the gaps
-    below its plate travel: the static solve is then the tangent of the run's final contact state). Strain: least-squares gradient of the displacements of the elements
-    away from the plates; force: the fixed plate's springs; section: the case's. One rank."""
-    import scipy.sparse as sp
-    import scipy.sparse.linalg as spl
-    e, b, c = case.sim.elements, case.sim.bonds, case.constants
-    n, a = e.n_owned, c.axis
-    x, R = e.x[:n], e.radius[:n]
-    kl = np.zeros((b.n, 12, 12))
-    for p, q, k in ((0, 6, b.ka), (3, 9, b.kt)):                       # axial, torsion
-        kl[:, p, p] = kl[:, q, q] = k
-        kl[:, p, q] = kl[:, q, p] = -k
-    L = b.L0
-    c12, c6, c4, c2 = 12 * b.kb / L**3, 6 * b.kb / L**2, 4 * b.kb / L, 2 * b.kb / L
-    for idx, s6 in (([1, 5, 7, 11], 1.0), ([2, 4, 8, 10], -1.0)):       # bending in the xy, xz planes
-        m = np.array([[c12, s6 * c6, -c12, s6 * c6], [s6 * c6, c4, -s6 * c6, c2],
-                      [-c12, -s6 * c6, c12, -s6 * c6], [s6 * c6, c2, -s6 * c6, c4]]).transpose(2, 0, 1)
-        kl[:, np.array(idx)[:, None], np.array(idx)[None, :]] += m
-    d = x[b.j] - x[b.i]
-    ex = d / np.linalg.norm(d, axis=1)[:, None]
-    t = np.where((np.abs(ex[:, 2]) < 0.9)[:, None], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
-    ey = np.cross(t, ex)
-    ey /= np.linalg.norm(ey, axis=1)[:, None]
-    lam = np.stack([ex, ey, np.cross(ex, ey)], axis=1)                 # rows: the local axes
-    T = np.zeros((b.n, 12, 12))
-    for k in range(4):
-        T[:, 3 * k:3 * k + 3, 3 * k:3 * k + 3] = lam
-    kg = np.einsum("mba,mbc,mcd->mad", T, kl, T)
-    dofs = np.concatenate([6 * b.i[:, None] + np.arange(6), 6 * b.j[:, None] + np.arange(6)], axis=1)
-    K = sp.coo_matrix((kg.ravel(), (np.repeat(dofs, 12, axis=1).ravel(), np.tile(dofs, (1, 12)).ravel())),
-                      shape=(6 * n, 6 * n)).tocsr()
-    kn = c.plate_stiffness
-    low = x[:, a] - R - c.plate_low < max(touch, 1e-9 * R.max())
-    high = c.plate_high - x[:, a] - R < max(touch, 1e-9 * R.max())
-    diag = np.zeros(6 * n)
-    diag[6 * np.nonzero(low | high)[0] + a] += kn
-    for other in {0, 1, 2} - {a}:
-        diag[6 * np.arange(n) + other] += 1e-9 * kn
-    f = np.zeros(6 * n)
-    f[6 * np.nonzero(high)[0] + a] = -kn * strain * c.length
-    u = spl.spsolve((K + sp.diags(diag)).tocsc(), f).reshape(n, 6)[:, :3]
-    if touch <= 1e-9 * R.max():       # elements touching at the start: every contact pushes
-        assert np.all(u[low, a] <= 0.0) and np.all(u[high, a] >= -strain * c.length)
-    keep = (e.flags[:n] & FLAG_NEAR_PLATE) == 0
-    X, U = x[keep] - x[keep].mean(axis=0), u[keep] - u[keep].mean(axis=0)
-    H = np.linalg.solve(X.T @ X, X.T @ U).T
-    return float(np.sum(-kn * u[low, a]) / (c.cross_section * -H[a, a]))
 
 
 def run_driver(out, argv):
@@ -162,8 +106,15 @@ def test_off_axis_end_points_and_hankinson(quick):
 def test_off_axis_45_is_the_lattices_static_response(quick):
     """E(45) of the 7^3 lattice against the static linear response of the same lattice between the
     same plates (``static_modulus``: an independent computation) within ``DYNAMIC_VS_STATIC``, and
-    below the infinite lattice's orthotropic value (beam theory, nu = 0) by the finite lattice's
-    staircase boundary layer (BOUNDARY_ROWS / 7)."""
+    that against the infinite lattice's orthotropic value (beam theory, nu = 0). At 45 deg the side
+    faces are lattice diagonals: a face element lacks one L and one R bond, whose forces and end
+    moments in the bulk's homogeneous state cancel (no traction across the face under uniaxial
+    stress), so that state holds to the faces and carries the bulk stress over the width between the
+    outermost element rows (times the T layers' depth); only the four corner columns (where the two
+    faces' missing bonds overlap) depart from it. The homogeneous field is kinematically admissible,
+    so the static modulus is at most bulk x that width x depth / the counted section (0.850; measured
+    0.845). The corners' softening has no closed form: the all-angle boundary layer BOUNDARY_ROWS / 7
+    stays the floor."""
     data, _ = quick
     deck = load_deck(COMPRESS_SCHEMA, None, study.QUICK_SET + [SMALL], base=study.STUDY_DECK)
     plan = study.StudyPlan(kinds=("ordered",), laws=("TOR",), ratios=(25.0,), E_R=100e6, E_T=20e6)
@@ -171,7 +122,9 @@ def test_off_axis_45_is_the_lattices_static_response(quick):
     E_static = static_modulus(case)
     m = study.lattice_moduli(case.deck)
     bulk = study.orthotropic(m["E_L"], m["E_R"], 1.0 / m["G_LR"], 45.0)
-    assert 1.0 - BOUNDARY_ROWS / 7 < E_static / bulk < 1.0
+    x, cell = case.sim.elements.x[:case.sim.elements.n_owned], 2.0 * case.deck["domain"]["radius"]
+    homogeneous = np.ptp(x[:, 1]) * (np.ptp(x[:, 2]) + cell) / case.constants.cross_section
+    assert 1.0 - BOUNDARY_ROWS / 7 < E_static / bulk < homogeneous < 1.0
     for law in study.LAWS:
         row = {x["xi_deg"]: x for x in data["off_axis"]["ordered"][law]}[45.0]
         assert row["n_failed"] == 0 and row["statuses"] == ["ok"]
@@ -410,8 +363,12 @@ def test_compact_realisations_seeds_one_packing_each_and_statistics(mixed):
 def test_compact_moduli_are_the_packings_static_response(mixed):
     """Each compact compression's modulus is the static linear response of the same bonded packing
     between the same plates (``static_modulus``; an element counts as touching when the run's plate
-    travel closes its gap) within DYNAMIC_VS_STATIC; the secant modulus agrees within 10 % (the
-    packing's faces are flat to 1e-3 R, so the first contacts close during the ramp)."""
+    travel closes its gap) within DYNAMIC_VS_STATIC. The secant (W's: the fixed plate's force) is
+    that of the mean plate force less half the plate mismatch, the domain's inertia, which the record
+    holds (measured up to 3.7 %); the mean force's secant is the slope's quasi-static modulus (the line
+    through the origin) but for the bond damping's viscous stress, which adds at most tau_max / (t - T/2)
+    of it at a constant strain rate after a ramp T (0.2 to 0.4 % here), and the loading-rate error
+    (0.7 % after 8 transits, pardem.protocols.anisotropy_study): measured -0.55 to +0.19 %."""
     data, _ = mixed
     deck = load_deck(COMPRESS_SCHEMA, None, study.QUICK_SET, base=study.STUDY_DECK)
     plan = anisotropy.make_plan(anisotropy.parser().parse_args(MIXED), deck)
@@ -423,7 +380,13 @@ def test_compact_moduli_are_the_packings_static_response(mixed):
                            packing=data["packings"][c["seed"], "xyz".index(c["axis"])])
         travel = built.deck["loading"]["strain"] * built.constants.length
         assert c["E"] == pytest.approx(static_modulus(built, touch=travel), rel=DYNAMIC_VS_STATIC), c
-        assert c["E_secant"] == pytest.approx(c["E"], rel=0.1)
+        b, D = built.sim.bonds, built.sim.bonds.rot_damping      # rotations: C = K D, C <= max eig(D) K
+        tr, det = D[:, 0] + D[:, 3], D[:, 0] * D[:, 3] - D[:, 1] * D[:, 2]
+        tau = max(b.tau_a.max(), b.tau_t.max(), (0.5 * (tr + np.sqrt(tr * tr - 4.0 * det))).max())
+        ramp = 4.0 * built.constants.transit_time        # auto: 4 transits of a loading lasting 8
+        viscous = tau / (c["steps"] * built.constants.dt - 0.5 * ramp)
+        mean_secant = c["E_secant"] * 0.5 * (c["force_fixed"] + c["force_moving"]) / c["force_fixed"]
+        assert -0.007 < mean_secant / c["E"] - 1.0 < viscous + 0.007, c
 
 
 def test_realisation_k_uses_base_seed_plus_k():

@@ -22,10 +22,10 @@ from pardem.physics.contact_laws import critical_time_step as contact_critical_t
 from pardem.physics.contact_laws import law_params
 from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs, choose_axis
-from pardem.physics import walls
+from pardem.physics import beam_static, walls
 from pardem.physics.anisotropy import lrt_frame
 from pardem.physics.timestep import critical_time_step, eigen_bound, max_tau
-from pardem.engine.reducer import STRAIN_SUMS, Reducer, strain_sums, young_and_poisson
+from pardem.engine.reducer import STRAIN_SUMS, Reducer, gradient_from_sums, strain_sums, young_and_poisson
 from pardem.engine.simulation import Simulation
 from pardem.engine.state import FLAG_NEAR_PLATE, Bonds, Elements, Plates
 
@@ -592,3 +592,45 @@ def measure(case):
             "strain_at_peak": float(eps[peak]),
             "bonds_broken": last["bonds_broken"], "bonds_yielded": last["bonds_yielded"],
             "samples_after_ramp": int(keep.sum())}
+
+
+# an element whose gap to a plate is below this fraction of the largest radius touches it at the start
+# (the plates lie on the outermost element surfaces, to round-off)
+TOUCHING = 1e-9
+
+
+def static_modulus(case, touch=None):
+    """Young's modulus [Pa] along the loading axis of the case's bond network from its static linear
+    response between the plates (``pardem.physics.beam_static``): what ``measure`` finds dynamically,
+    without time stepping, damping or plate dynamics.
+
+    ``touch`` [m]: the elements whose gap to a plate is below it are tied to that plate; default
+    ``TOUCHING`` of the largest radius, the elements touching at the start (the run closes the gaps
+    below its plate travel: pass the travel for the tangent of its final contact set, approximately:
+    a few elements tied across a gap may be pulled, which is not checked). Strain: the fit of
+    ``measure`` (``reducer.strain_sums``, the elements not flagged near a plate); force: the fixed
+    plate's; section: ``constants.cross_section``. One rank, intact bonds. ValueError for plates the
+    static model does not describe (Hertz, frictional, lateral walls), or when a plate pulls an
+    element it touches at the start (it would leave the plate).
+    """
+    e, b, c, plates = case.sim.elements, case.sim.bonds, case.constants, case.sim.plates
+    n = e.n_owned
+    if b.n and max(b.i.max(), b.j.max()) >= n:
+        raise ValueError("static_modulus: a bond reaches a ghost element; run it on one rank")
+    if plates.law.law != "linear" or plates.law.friction != 0.0 or len(plates.lateral):
+        raise ValueError("static_modulus: expected linear frictionless plates without lateral walls, got "
+                         f"{plates.law.law} plates, friction {plates.law.friction}, {len(plates.lateral)} "
+                         "lateral walls")
+    R = e.radius[:n]
+    touch = TOUCHING * float(R.max()) if touch is None else touch
+    k = b.intact
+    r = beam_static.plate_response(e.x0[:n], R, b.i[k], b.j[k], b.L0[k], b.ka[k], b.kb[k], b.kt[k], c.axis,
+                                   c.plate_low, c.plate_high, c.plate_stiffness, touch)
+    touching = r.gap < TOUCHING * float(R.max())
+    if (r.pulled & touching).any():
+        raise ValueError(f"static_modulus: the plates pull {int((r.pulled & touching).sum())} elements they "
+                         "touch at the start: the linear ties are not the frictionless contact problem")
+    sums = np.empty(STRAIN_SUMS)
+    strain_sums(e.x0[:n] + r.u, e.x0[:n], e.flags[:n], n, c.origin, sums)
+    H = gradient_from_sums(sums)
+    return r.force_low / (c.cross_section * -H[c.axis, c.axis])
