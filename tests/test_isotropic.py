@@ -410,9 +410,9 @@ def protocol_state(path):
 
 def comparable(path):
     """isotropic.json without what may differ between an uninterrupted and a restarted run (wall
-    times, the checkpoint paths, the restart's name)."""
+    times, memory, the checkpoint paths, the restart's name)."""
     d = json.loads(path.read_text())
-    for k in ("wall_seconds", "restarted_from", "checkpoints"):
+    for k in ("wall_seconds", "peak_rss_mib", "restarted_from", "checkpoints"):
         d.pop(k)
     d["deck"].pop("checkpoint")               # the restarts may set other checkpoint and
     d["deck"]["output"].pop("vtk_every")      # ParaView periods

@@ -333,7 +333,7 @@ def run_tx(ranks, out, *extra):
 
 def comparable(path):
     d = json.loads(path.read_text())
-    for k in ("wall_seconds", "preparation_seconds", "restarted_from", "checkpoints"):
+    for k in ("wall_seconds", "peak_rss_mib", "preparation_seconds", "restarted_from", "checkpoints"):
         d.pop(k)
     d["deck"].pop("checkpoint")               # the restarts may set other checkpoint and
     d["deck"]["output"].pop("vtk_every")      # ParaView periods
