@@ -293,6 +293,40 @@ def biaxial_hex(comm, slab_axis=0, settle=600, steps=None, cement=False, every=5
     return rows, case, mem, geo, deck, st, platens
 
 
+@pytest.mark.parametrize("copies", [[2, 1], [1, 2], [2, 3]])
+def test_replicated_sample_is_the_copies_cut_by_the_same_platen_lines(copies):
+    """``replicate.copies`` copies the periodic packing before it is opened. Counting, with the
+    N = 168 grains of the lattice and n1 kept of one copy: k_x copies side by side keep k_x n1
+    grains and k_x times each platen; k_y copies stacked keep the bottom copy's grains above the
+    bottom cut, the top copy's below the top cut and the k_y - 2 between whole, i.e.
+    k_x (n1 + (k_y - 1) N) (every grain is above the bottom cut or below the top one). The
+    copies carry the original's contact forces (``tests/test_response.py``), so the opened
+    sample starts in the original's stress: the Love-Weber stress of the contacts over the
+    replicated cell equals the periodic case's (to round-off of the exact sums over new pairs)."""
+    from pardem.protocols import biaxial
+    deck = hex_deck()
+    case, _ = hex_case()
+    s0 = case.sim.global_stress()
+    one, geo1 = biaxial.open_sample(Communicator(), case, deck)
+    case, _ = hex_case()
+    deck["replicate"]["copies"] = copies
+    from pardem.engine.replicate import replicate
+    s_rep = replicate(Communicator(), hex_case()[0], copies).sim
+    s_rep.run(0)
+    np.testing.assert_allclose(s_rep.global_stress(), s0, rtol=1e-12, atol=1e-9 * abs(s0[0, 0]))
+    many, geo = biaxial.open_sample(Communicator(), case, deck)
+    kx, ky = copies
+    N = 12 * 14
+    assert geo["n_before"] == N * kx * ky
+    assert geo["n_grains"] == kx * (geo1["n_grains"] + (ky - 1) * N)
+    assert len(geo["bottom"]) == kx * len(geo1["bottom"]) and len(geo["top"]) == kx * len(geo1["top"])
+    # the platen lines: the bottom one where it was, the top one (k_y - 1) cell heights higher
+    L = case.sim.cell.length[1]
+    assert geo["y_bottom"] == geo1["y_bottom"]
+    assert geo["y_top"] == pytest.approx(geo1["y_top"] + (ky - 1) * L, rel=1e-14)
+    assert many.sim.step_count == case.sim.step_count
+
+
 def test_membrane_on_a_hexagonal_packing_brackets_pc_between_the_platen_measures():
     """An elastically isotropic (hexagonal) packing at its own pressure pc in the membranes, at
     small strain (eps_a = 2e-4, a tenth of the contacts' relative overlap): the Love-Weber
@@ -521,6 +555,14 @@ def test_short_biaxial_driver_outputs_and_lateral_stress_within_2_percent_at_sma
     assert len(res["windows"]) == 2
     for w in res["windows"]:
         assert set(w["predictions"]) == {"mohr_coulomb", "roscoe", "arthur"}
+    # the stage timings count the steps each stage took: settle the deck's steps, load the rows' span
+    steps = summary["stage_steps"]
+    assert set(steps) == {"prepare", "open", "settle", "load"} and steps["open"] == 0
+    assert steps["prepare"] == res["preparation"]["steps"] and steps["settle"] == 500
+    assert steps["load"] == rows[-1]["step"] - rows[0]["step"]
+    assert sum(steps.values()) == summary["steps"]
+    assert summary["element_steps_per_second"]["load"] == pytest.approx(
+        res["sample"]["n_grains"] * steps["load"] / summary["stage_seconds"]["load"], rel=1e-12)
 
 
 def test_engine_chain_is_the_physics_chain_where_that_one_succeeds():
@@ -544,7 +586,8 @@ def test_engine_chain_is_the_physics_chain_where_that_one_succeeds():
 @pytest.mark.parametrize("setting, field", [("loading.platen_offset=0.5", "loading.platen_offset"),
                                             ("localisation.strains=[0.5]", "localisation.strains"),
                                             ("run.slab_axis=z", "run.slab_axis"),
-                                            ("loading.confining_pressures=[-1.0]", "loading.confining_pressures")])
+                                            ("loading.confining_pressures=[-1.0]", "loading.confining_pressures"),
+                                            ("replicate.copies=[0,1]", "replicate.copies")])
 def test_bad_biaxial_input_is_one_line_and_exit_2(tmp_path, setting, field):
     p = subprocess.run([sys.executable, "-m", "pardem.drivers.biaxial", "--config", SHORT, "--set", setting,
                         "--out", str(tmp_path / "bad")], capture_output=True, text=True, timeout=300, cwd=ROOT)
@@ -552,6 +595,16 @@ def test_bad_biaxial_input_is_one_line_and_exit_2(tmp_path, setting, field):
     lines = p.stderr.strip().splitlines()
     assert len(lines) == 1 and field in lines[0], p.stderr
     assert not (tmp_path / "bad").exists()
+
+
+def test_the_memory_check_counts_the_copies():
+    """The deck's memory check is of the replicated sample: 10^4 grains pass, the same copied
+    100 x 100 times (10^8 grains, about 100 GB) is refused naming replicate.copies."""
+    from pardem.config import DeckError, load_deck
+    from pardem.protocols import biaxial
+    load_deck(biaxial.SCHEMA, overrides=["sample.n=10000"])
+    with pytest.raises(DeckError, match="replicate.copies"):
+        load_deck(biaxial.SCHEMA, overrides=["sample.n=10000", "replicate.copies=[100,100]"])
 
 
 @pytest.mark.mpi

@@ -19,7 +19,8 @@ preparation, the sample, peak and residual friction angles, the dilatancy angle,
 stress error, and per localisation window the shear band (angle, width in mean diameters,
 centre, contrast, and whether the field is localised at all: ``shear_band.detect``) with the
 Mohr-Coulomb, Roscoe and Arthur predictions, printed side by side for a localised band; the deck, ``finished``,
-``restarted_from``, ``checkpoints``, timings), ``DIR/biaxial.png`` (q / pc and eps_v against
+``restarted_from``, ``checkpoints``, timings: ``stage_seconds``, ``stage_steps``, ``seconds_per_step`` and
+``element_steps_per_second`` per stage (prepare, open, settle, load), ``peak_rss_mib`` per rank), ``DIR/biaxial.png`` (q / pc and eps_v against
 eps_a; cemented: the broken cements too), ``DIR/localisation-P-W.png`` (maps of the incremental shear strain and grain rotations of
 window W of pressure P) and ``DIR/localisation-P-W.vtu`` (the same fields for ParaView, with
 the cements each grain lost in the window), and for cemented samples (``[cement] enabled = true``,
@@ -103,6 +104,7 @@ class Biaxial(GranularDriver):
         self.mem = self.platens = None
         self.pending = {}        # localisation window -> snapshot of its start
         self.record = None       # cemented: biaxial.CementRecord of the current loading
+        self.clock = None        # gout.StageClock: wall seconds and steps per stage
 
     def check(self, run, deck):
         if deck["run"]["slab_axis"] == "z":
@@ -131,7 +133,8 @@ class Biaxial(GranularDriver):
     def protocol_state(self, run):
         cur = dict(run.state["current"])
         cur["membrane"] = self.mem.state() if self.mem is not None else None
-        return {**run.state, "current": cur}
+        clock = self.clock.state(run.sim.step_count) if self.clock is not None else run.state.get("clock")
+        return {**run.state, "current": cur, "clock": clock}
 
     def payload(self, run):
         groups, series, attrs = super().payload(run)
@@ -145,6 +148,10 @@ class Biaxial(GranularDriver):
 
     def start(self, run):
         self.open_series(run)
+        self.clock = gout.StageClock(run.state.get("clock"))
+        geo = run.state["current"]["geo"]
+        if geo is not None:
+            run.progress.n_elements = geo["n_grains"]
         d = run.deck
         run.progress.say(f"pardem {pardem.__version__} biaxial (2D): {d['sample']['n']} grains on {run.comm.size} "
                          f"rank(s), dt = {run.sim.dt:.4g} s; confining pressures "
@@ -161,6 +168,7 @@ class Biaxial(GranularDriver):
             cur = run.state["current"]
             k, pc = cur["index"], cur["pc"]
             if cur["stage"] == "prepare":
+                self.clock.enter("prepare", run.sim.step_count)
                 if k > 0 and not run.case.sim.cell.periodic[1]:     # a new gas after the last loading
                     step, t = run.sim.step_count, run.sim.time
                     run.case = biaxial.isotropic.build_gas(run.comm, biaxial.iso_deck(deck))
@@ -178,8 +186,11 @@ class Biaxial(GranularDriver):
                 if stop is not None and run.sim.step_count >= stop:
                     raise gout.StepLimit(f"stopped at step {run.sim.step_count} (--steps {stop}), after the preparation")
             if cur["stage"] == "open":
+                self.clock.enter("open", run.sim.step_count)
                 run.case, geo = biaxial.open_sample(run.comm, run.case, deck)
                 cur["geo"] = geo
+                progress.n_elements = geo["n_grains"]      # the rate counts the grains kept (and copied)
+                progress.start(run.sim.step_count)          # and is measured afresh: a step's cost changed
                 if biaxial.start_loading(run.case, deck, geo, None):
                     self.record = biaxial.CementRecord(biaxial.intact_cements(run.sim))
                 self.mem, *self.platens = biaxial.install(run.case, deck, pc, geo)
@@ -190,11 +201,13 @@ class Biaxial(GranularDriver):
                              f"{len(self.mem.chains['left'])} and {len(self.mem.chains['right'])} grains; "
                              f"friction {deck['material']['friction']}")
             if cur["stage"] == "settle":
+                self.clock.enter("settle", run.sim.step_count)
                 biaxial.settle(run.case, deck, cur, run.operations, stop)
                 cur["reference"] = biaxial.reference(run.case, self.mem, cur["geo"], deck)
                 biaxial.set_moving(self.platens, deck, cur["geo"])
                 cur["stage"] = "load"
             if cur["stage"] == "load":
+                self.clock.enter("load", run.sim.step_count)
                 total = biaxial.loading_steps(deck, run.sim.dt)
                 progress.total = cur["reference"]["step"] + total
                 progress.say(f"loading pc = {pc:.4g} Pa to eps_a = {deck['loading']['strain']} at "
@@ -218,6 +231,9 @@ class Biaxial(GranularDriver):
                                      for w in cur["windows"]]
                 if self.record is not None:
                     result["cements"] = self.cement_outputs(run, rows, result)
+                self.clock.close(run.sim.step_count)
+                progress.n_elements = deck["sample"]["n"]
+                progress.start(run.sim.step_count)
                 run.state["results"].append(result)
                 progress.say(f"pc = {pc:.4g} Pa: phi_peak = {result['phi_peak_deg']:.2f} deg at eps_a = "
                              f"{result['strain_at_peak']:.4f}, phi_residual = {result['phi_residual_deg']:.2f} deg, "
@@ -310,7 +326,13 @@ class Biaxial(GranularDriver):
         return r[np.argsort(g)][np.searchsorted(np.sort(g), gids)]
 
     def summary(self, run):
+        clock = self.clock if self.clock is not None else gout.StageClock(run.state.get("clock"))
+        geo = run.state["current"]["geo"] or (run.state["results"][-1]["sample"] if run.state["results"] else None)
+        opened = geo["n_grains"] if geo is not None else run.deck["sample"]["n"]
         return {"pressures": run.state["results"], "n_elements": run.deck["sample"]["n"],
+                # grains x steps / s: the preparation steps sample.n grains, the later stages the
+                # grains kept in the (last) opened sample, replicated or not
+                **clock.summary(run.sim.step_count, lambda k: run.deck["sample"]["n"] if k == "prepare" else opened),
                 "conventions": {"stress": "Love-Weber stress of all contacts over the membrane polygon's area "
                                           "times the thickness t (the mean diameter); compression positive",
                                 "eps_vol": "1 - A/A0, contraction positive", "eps_axial": "1 - H/H0",

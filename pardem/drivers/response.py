@@ -120,7 +120,7 @@ class Response(GranularDriver):
 
     def start(self, run):
         self.open_series(run)
-        self.clock = response.StageClock(run.state.get("clock"))
+        self.clock = gout.StageClock(run.state.get("clock"))
         k = run.deck["replicate"]["copies"]
         run.progress.say(f"pardem {pardem.__version__} response: {run.deck['sample']['n']} grains (2D) x "
                          f"{k[0]} x {k[1]} copies on {run.comm.size} rank(s), p = "
@@ -152,6 +152,7 @@ class Response(GranularDriver):
             self.layer = response.make_layer(comm, case, deck, progress)
             run.case = self.layer.case
             progress.n_elements = int(self.layer.geometry["n_grains"])   # the rate counts the copies
+            progress.start(run.sim.step_count)                           # measured afresh
             run.state["respond"] = response.new_state()
             run.state["stage"] = "respond"
             self.clock.close(run.sim.step_count)
@@ -182,20 +183,13 @@ class Response(GranularDriver):
         run.state["stage"] = "done"
 
     def summary(self, run):
-        clock = (self.clock.state(run.sim.step_count) if self.clock is not None
-                 else run.state.get("clock") or {"seconds": {}, "steps": {}})
+        clock = self.clock if self.clock is not None else gout.StageClock(run.state.get("clock"))
         n = int(run.comm.sum(run.sim.elements.n_owned))
-        per_step = {k: (clock["seconds"][k] / clock["steps"][k] if clock["steps"].get(k) else None)
-                    for k in clock["seconds"]}
         return {"result": run.state.get("result"), "preparation": run.state.get("preparation"),
                 "stage": run.state.get("stage"), "respond_stage": (run.state.get("respond") or {}).get("stage"),
                 "n_grains": n,
-                "stage_seconds": clock["seconds"], "stage_steps": clock["steps"], "seconds_per_step": per_step,
                 # grains x steps / s (the preparation has the unreplicated sample.n grains)
-                "element_steps_per_second": {k: ((run.deck["sample"]["n"] if k == "prepare" else n)
-                                                 * clock["steps"][k] / clock["seconds"][k]
-                                                 if clock["steps"].get(k) else None)
-                                             for k in clock["seconds"]},
+                **clock.summary(run.sim.step_count, lambda k: run.deck["sample"]["n"] if k == "prepare" else n),
                 "conventions": {"stress": "Love-Weber, per unit area of the plane divided by the thickness t "
                                           "(the mean diameter) [Pa], tension positive",
                                 "dsigma_yy": "change of sigma_yy from the reference state, binned: sum of the "

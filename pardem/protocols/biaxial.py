@@ -5,7 +5,9 @@ Protocol, for each confining pressure ``pc`` of ``loading.confining_pressures`` 
 1. **Preparation** (``pardem.protocols.isotropic.prepare`` in 2D): the deck's gas of disks-in-plane
    spheres (``sample``: bidisperse by default, R = 0.11 / 0.09 mm, i.e. 0.1 mm +- 10 %) compressed
    frictionless by the pressure servo of the periodic cell to static equilibrium at ``pc``.
-2. **Opening** (``pardem.engine.open_cell.open_axes``): x and y are no longer periodic; with
+2. **Opening**: the packing copied ``replicate.copies = [k_x, k_y]`` times first
+   (``pardem.engine.replicate``: a larger sample without a new preparation, as in the response
+   protocol; default [1, 1], none); then (``pardem.engine.open_cell.open_axes``) x and y are no longer periodic; with
    ``lo``, ``L`` the former cell along y, the platen lines are ``y_b = lo + h`` and
    ``y_t = lo + L - h`` (``h = loading.platen_offset`` mean radii); grains whose centres lie within
    ``loading.platen_halfwidth`` mean radii (default 1: "within R") of a line form that platen,
@@ -75,13 +77,14 @@ from pardem.engine import fixes, granular
 from pardem.engine.contacts import KEY_BASE
 from pardem.engine.membrane_load import MembraneLoad
 from pardem.engine.open_cell import open_axes
+from pardem.engine.replicate import replicate
 from pardem.parallel.exact_sum import exact_sum
 from pardem.physics import hertz_mindlin as hm
 from pardem.physics import local_strain, shear_band
 from pardem.physics.timestep import rayleigh_time_step
 from pardem.protocols import deck_checks as dc
 from pardem.protocols import isotropic
-from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit, run_section
+from pardem.protocols.granular_output import CHECKPOINT_SECTION, REPLICATE_SECTION, StepLimit, run_section
 
 ISO = isotropic.SCHEMA
 
@@ -98,7 +101,8 @@ def biaxial_checks(deck):
                                                          mat["poisson"])
     dc.check_normal(dt, "the time step", "s", "run.dt_fraction, material.shear_modulus, sample.density")
     # the sample's height at the densest packing of the smallest grains (the shortest height)
-    edge = math.sqrt(s["n"] * math.pi * r_min * r_min / (math.pi / math.sqrt(12.0)) * s["aspect_ratio"])
+    edge = math.sqrt(s["n"] * math.pi * r_min * r_min / (math.pi / math.sqrt(12.0)) * s["aspect_ratio"]) \
+        * deck["replicate"]["copies"][1]
     dc.check_rate(ld["strain_rate"], edge, math.sqrt(isotropic.young_modulus(mat) / s["density"]),
                   "loading.strain_rate", "material.shear_modulus, sample.density")
     steps = len(ld["confining_pressures"]) * (ld["strain"] / (ld["strain_rate"] * dt) + ld["settle_steps"]
@@ -124,6 +128,7 @@ SCHEMA = Schema({
     "material": ISO["material"],
     "preparation": ISO["preparation"],
     "equilibrium": ISO["equilibrium"],
+    "replicate": REPLICATE_SECTION,
     "loading": {
         "confining_pressures": Field([1e7], number_list(positive()),
                                      "confining pressures pc [Pa]: each prepares its packing at pc and loads it"),
@@ -212,15 +217,20 @@ def prepare(comm, deck, pc, step=0, time=0.0, progress=None):
 
 
 def open_sample(comm, case, deck):
-    """Open x and y, keep the grains between the platens; returns ``(case, geometry)`` with the
+    """Copy the packing ``replicate.copies`` times (``pardem.engine.replicate``: no new preparation),
+    open x and y, keep the grains between the platens; returns ``(case, geometry)`` with the
     platen lines ``y_bottom``, ``y_top`` [m] and the platens' gids (new numbering)."""
     ld = deck["loading"]
     R = mean_radius(deck)
+    step, clock = case.sim.step_count, case.sim.time
+    k = deck["replicate"]["copies"]
+    if k != [1, 1]:
+        case = replicate(comm, case, k)
     lo, L = float(case.sim.cell.lo[1]), float(case.sim.cell.length[1])
     yb, yt = lo + ld["platen_offset"] * R, lo + L - ld["platen_offset"] * R
     hw = ld["platen_halfwidth"] * R
     opened = open_axes(comm, case, ("x", "y"), keep=lambda x: (x[:, 1] >= yb - hw) & (x[:, 1] <= yt + hw))
-    granular.continue_clock(opened.sim, case.sim.step_count, case.sim.time)
+    granular.continue_clock(opened.sim, step, clock)
     e = opened.sim.elements
     n = e.n_owned
     parts = comm.allgather((e.gid[:n].copy(), e.x[:n, 1].copy()))

@@ -12,6 +12,7 @@ checkpoint stores it as the root attribute ``protocol`` next to the granular cas
 """
 import json
 import os
+import time
 
 import numpy as np
 
@@ -51,6 +52,25 @@ def domain_checks(deck):
     if deck["domain"]["dimension"] == 2 and deck["run"]["slab_axis"] == "z":
         raise DeckError("run.slab_axis = 'z': expected 'x' or 'y' with domain.dimension = 2 (the grains "
                         "lie in the plane z = 0)")
+
+
+def copies_value(name, v):
+    """Deck checker of ``replicate.copies``: two integers in [1, 100]."""
+    if (not isinstance(v, (list, tuple)) or len(v) != 2
+            or any(isinstance(k, bool) or not isinstance(k, (int, float)) or k != int(k) or not 1 <= k <= 100
+                   for k in v)):
+        raise DeckError(f"{name} = {v!r}: expected [k_x, k_y], two integers in [1, 100] (copies along x and y)")
+    return [int(k) for k in v]
+
+
+copies_value.options = None
+
+# the [replicate] section of the 2D decks (pardem.engine.replicate: larger packings without a new
+# preparation)
+REPLICATE_SECTION = {
+    "copies": Field([1, 1], copies_value, "copies [k_x, k_y] of the periodic packing (pardem.engine."
+                                          "replicate) before the boundaries are made; [1, 1]: none"),
+}
 
 
 def run_section(dt_help, skin_help):
@@ -189,3 +209,46 @@ def writers(case, deck, out, restart, state_fn):
         if sim.step_count == 0:
             pv(sim)    # the initial state
     return writer, paraview
+
+
+class StageClock:
+    """Wall seconds and steps per stage of a run, kept across restarts (``state()`` is JSON-able
+    and includes the current stage so far; a restart continues from it)."""
+
+    def __init__(self, state=None):
+        st = state or {}
+        self.seconds = dict(st.get("seconds", {}))
+        self.steps = dict(st.get("steps", {}))
+        self.current = None      # (name, t0, step0)
+
+    def enter(self, name, step):
+        """Start (or continue) stage ``name`` at ``step``; the previous one ends here."""
+        self.close(step)
+        self.current = (name, time.perf_counter(), int(step))
+
+    def close(self, step):
+        if self.current is not None:
+            name, t0, s0 = self.current
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t0
+            self.steps[name] = self.steps.get(name, 0) + int(step) - s0
+            self.current = None
+
+    def state(self, step):
+        """``{"seconds": {stage: s}, "steps": {stage: n}}`` up to now (the current stage included)."""
+        sec, steps = dict(self.seconds), dict(self.steps)
+        if self.current is not None:
+            name, t0, s0 = self.current
+            sec[name] = sec.get(name, 0.0) + time.perf_counter() - t0
+            steps[name] = steps.get(name, 0) + int(step) - s0
+        return {"seconds": sec, "steps": steps}
+
+    def summary(self, step, n_elements):
+        """The summary's timing keys up to ``step``: ``stage_seconds``, ``stage_steps``,
+        ``seconds_per_step`` and ``element_steps_per_second`` per stage; ``n_elements(stage)`` is
+        the number of elements that stage stepped."""
+        st = self.state(step)
+        sec, steps = st["seconds"], st["steps"]
+        return {"stage_seconds": sec, "stage_steps": steps,
+                "seconds_per_step": {k: sec[k] / steps[k] if steps.get(k) else None for k in sec},
+                "element_steps_per_second": {k: n_elements(k) * steps[k] / sec[k] if steps.get(k) and sec[k] > 0
+                                             else None for k in sec}}

@@ -133,15 +133,18 @@ STATIC_AUTO_MAX = 1000
 
 def sample_checks(deck):
     """Cross-field checks of the deck's sample (run by ``config.check_deck``): one fraction per
-    radius, representable masses, a memory estimate within the machine's."""
+    radius, representable masses, a memory estimate within the machine's (of the replicated packing
+    when the deck has ``replicate.copies``)."""
     s = deck["sample"]
+    k = deck["replicate"]["copies"] if "replicate" in deck else [1, 1]
     if len(s["fractions"]) != len(s["radii"]):
         raise DeckError(f"sample.fractions has {len(s['fractions'])} entries: expected one per radius "
                         f"({len(s['radii'])}) of sample.radii")
     r_min, r_max = min(s["radii"]), max(s["radii"])
     mean_volume = sum(f * 4.0 / 3.0 * np.pi * dc.cube(r) for f, r in zip(s["fractions"], s["radii"])) \
         / sum(s["fractions"])
-    dc.granular_checks(float(s["n"]), s["density"], r_min, r_max, mean_volume, "sample.n, sample.radii")
+    dc.granular_checks(float(s["n"]) * k[0] * k[1], s["density"], r_min, r_max, mean_volume,
+                       "sample.n, replicate.copies, sample.radii" if "replicate" in deck else "sample.n, sample.radii")
 
 
 def run_checks(deck):

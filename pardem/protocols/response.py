@@ -85,18 +85,7 @@ from pardem.physics import response as rsp
 from pardem.physics.contact_frame import pair_geometry
 from pardem.protocols import deck_checks as dc
 from pardem.protocols import isotropic as iso
-from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit, run_section
-
-
-def _copies_value(name, v):
-    if (not isinstance(v, (list, tuple)) or len(v) != 2
-            or any(isinstance(k, bool) or not isinstance(k, (int, float)) or k != int(k) or not 1 <= k <= 100
-                   for k in v)):
-        raise DeckError(f"{name} = {v!r}: expected [k_x, k_y], two integers in [1, 100] (copies along x and y)")
-    return [int(k) for k in v]
-
-
-_copies_value.options = None
+from pardem.protocols.granular_output import CHECKPOINT_SECTION, REPLICATE_SECTION, StepLimit, run_section
 
 
 def _times_value(name, v):
@@ -114,20 +103,6 @@ _PREP["pressure"] = Field(1e6, positive(), "pressure p of the frictionless prepa
                                            "(periodic cell, isotropic protocol)")
 _PREP["max_steps"] = Field(400000, number(lo=1, lo_open=False, integer=True),
                            "largest number of steps of the preparation")
-
-
-def sample_checks(deck):
-    """One fraction per radius; masses representable; the memory of the replicated packing."""
-    s = deck["sample"]
-    if len(s["fractions"]) != len(s["radii"]):
-        raise DeckError(f"sample.fractions has {len(s['fractions'])} entries: expected one per radius "
-                        f"({len(s['radii'])}) of sample.radii")
-    k = deck["replicate"]["copies"]
-    r_min, r_max = min(s["radii"]), max(s["radii"])
-    mean_volume = sum(f * 4.0 / 3.0 * np.pi * dc.cube(r) for f, r in zip(s["fractions"], s["radii"])) \
-        / sum(s["fractions"])
-    dc.granular_checks(float(s["n"]) * k[0] * k[1], s["density"], r_min, r_max, mean_volume,
-                       "sample.n, replicate.copies, sample.radii")
 
 
 def run_checks(deck):
@@ -154,10 +129,7 @@ SCHEMA = Schema({
     "material": {k: f for k, f in iso.SCHEMA["material"].items() if k != "friction"},
     "preparation": _PREP,
     "equilibrium": iso.SCHEMA["equilibrium"],
-    "replicate": {
-        "copies": Field([1, 1], _copies_value, "copies [k_x, k_y] of the periodic packing (pardem.engine."
-                                               "replicate) before the boundaries are made; [1, 1]: none"),
-    },
+    "replicate": REPLICATE_SECTION,
     "boundary": {
         "row_thickness": Field("auto", auto_or(positive()),
                                "grains within this distance [m] of the bottom and top lines form the rigid "
@@ -204,7 +176,7 @@ SCHEMA = Schema({
                                                  "dsigma_yy, displacement per grain) at each record"),
         "plot": Field(True, boolean, "draw response.png (needs matplotlib)"),
     },
-}, checks=(sample_checks, run_checks))
+}, checks=(iso.sample_checks, run_checks))
 
 SERIES_COLUMNS = ("step", "time", "stage", "unbalanced", "kinetic", "top_force", "bottom_force")
 SERIES_UNITS = ("1", "s", "1", "1", "1", "N", "N")
@@ -535,38 +507,6 @@ def restore_response(layer, series):
         layer.records = json.loads(bytes(np.asarray(series["records_json"], np.uint8)).decode())
 
 
-class StageClock:
-    """Wall seconds and steps per stage of a run, kept across restarts (``state()`` is JSON-able
-    and includes the current stage so far; a restart continues from it)."""
-
-    def __init__(self, state=None):
-        st = state or {}
-        self.seconds = dict(st.get("seconds", {}))
-        self.steps = dict(st.get("steps", {}))
-        self.current = None      # (name, t0, step0)
-
-    def enter(self, name, step):
-        """Start (or continue) stage ``name`` at ``step``; the previous one ends here."""
-        self.close(step)
-        self.current = (name, time.perf_counter(), int(step))
-
-    def close(self, step):
-        if self.current is not None:
-            name, t0, s0 = self.current
-            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - t0
-            self.steps[name] = self.steps.get(name, 0) + int(step) - s0
-            self.current = None
-
-    def state(self, step):
-        """``{"seconds": {stage: s}, "steps": {stage: n}}`` up to now (the current stage included)."""
-        sec, steps = dict(self.seconds), dict(self.steps)
-        if self.current is not None:
-            name, t0, s0 = self.current
-            sec[name] = sec.get(name, 0.0) + time.perf_counter() - t0
-            steps[name] = steps.get(name, 0) + int(step) - s0
-        return {"seconds": sec, "steps": steps}
-
-
 def wave_speed(layer):
     """``(c [m/s], H [m])``: the affine wave speed ``sqrt(S / rho_b)`` (``S = kd2 / (2 V) + p``, the
     frictionless affine stiffness of the contacts, ``rho_b`` the mass over ``L_x L_y t``) and the
@@ -745,7 +685,7 @@ def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=No
     dynamic snapshot) with ``layer.ref`` and ``layer.records`` put back (``restore_response``)
     continues the response where a checkpoint left it, bit for bit on the same ranks. ``stop``:
     ``StepLimit`` at the first check (or snapshot run) at or after this step. ``clock``: a
-    ``StageClock`` timing the stages."""
+    ``granular_output.StageClock`` timing the stages."""
     sim = layer.sim
     t0 = time.perf_counter()
     st = new_state() if state is None else state
@@ -845,4 +785,4 @@ def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=No
 
 __all__ = ["SCHEMA", "RigidRow", "Layer", "prepared", "make_layer", "respond", "measure", "gather_state",
            "contact_table", "apply_load", "relax_layer", "wave_speed", "iso_deck", "SERIES_COLUMNS", "new_state",
-           "layer_state", "restore_layer", "response_arrays", "restore_response", "StageClock"]
+           "layer_state", "restore_layer", "response_arrays", "restore_response"]
