@@ -153,6 +153,52 @@ def test_lattice_response_is_linear(lattice_runs):
     assert np.max(np.abs(sb - 2 * sa)) > 0.0      # the law is not linear: the runs are distinct
 
 
+def test_load_points_on_a_lattice_are_translates_and_their_mean_is_the_static_result():
+    """``load.points = 3`` on the triangular lattice, which is invariant under a translation by a
+    column: each point's profile, binned about its own loaded grain, is point 0's. Oracles: the
+    translation symmetry (each layer's transmitted force within the relaxations' bound of point
+    0's; every bin within the same relative bound of the largest, with the two end bins merged:
+    x = -L/2 and x = +L/2 are one place of the periodic layer, and a grain exactly there falls in
+    either by round-off); the static result is the mean of the points' profiles (numpy, exactly
+    as documented) with their standard error; the loads sit where the protocol puts them."""
+    comm = Communicator()
+    res, layer, h = response_run.run(comm, points=3)
+    pts = res["static_points"]
+    g = layer.geometry
+    Lx, d = g["length"][0], g["mean_diameter"]
+    st = res["static"]
+    assert len(pts) == 3 and st["points"] == 3 and st["converged"]
+    assert len({q["loaded_gid"] for q in pts}) == 3
+    for p, q in enumerate(pts):
+        target = g["lo"][0] + Lx * (0.5 + p / 3.0)
+        assert abs(rsp.relative_x(q["loaded_position"][0], target, Lx)) < d
+        assert q["loaded_position"][1] == pytest.approx(pts[0]["loaded_position"][1], abs=1e-9 * h)  # the top row
+        assert q["reference"]["converged"] and q["static"]["converged"]
+    meta = [{"n": g["n_grains"], "u_ref": q["reference"]["unbalanced"], "u_static": q["static"]["unbalanced"],
+             "force": res["force"], "mean_contact_force": q["reference"]["mean_contact_force"]} for q in pts]
+
+    def merged(q):
+        s = np.array(q["dsigma_yy"])
+        s[:, 0] += s[:, -1]
+        return s[:, :-1]
+
+    s0 = merged(pts[0])
+    for q, m in zip(pts[1:], meta[1:]):
+        # each layer's sum is the transmitted force within N (u_ref + u_static) <f_c> / F of the
+        # exact one (``_residual_bound``), for both points
+        tol = _residual_bound(m) + _residual_bound(meta[0])
+        assert np.all(np.abs(np.array(q["transmitted_over_F"]) - pts[0]["transmitted_over_F"]) <= tol)
+        # a bin: the residual forces act as extra point loads of at most that fraction of F,
+        # whose largest bin response is at most that of F under the load (the largest bin)
+        assert np.max(np.abs(merged(q) - s0)) <= tol * np.max(np.abs(s0)), (np.max(np.abs(merged(q) - s0)), tol)
+        assert abs(q["bottom_share"] - pts[0]["bottom_share"]) <= tol
+    stack = np.array([q["dsigma_yy"] for q in pts])
+    assert np.allclose(st["dsigma_yy"], stack.mean(axis=0), rtol=0, atol=1e-15 * np.abs(stack).max())
+    assert np.allclose(st["dsigma_yy_sem"], stack.std(axis=0, ddof=1) / math.sqrt(3), rtol=1e-12, atol=0)
+    assert res["reactions"]["bottom_share"] == pytest.approx(np.mean([q["bottom_share"] for q in pts]), rel=1e-15)
+    assert res["dynamic"] == []
+
+
 def test_lattice_response_with_a_fixed_top_splits_the_load():
     comm = Communicator()
     res, layer, h = response_run.run(comm, top="fixed")
@@ -325,6 +371,24 @@ def _result_without_timings(summary):
     return r
 
 
+def _tiny_deck(every):
+    """Driver arguments of a tiny deck with capped relaxations (not converged: restarts are tested,
+    not physics) and a checkpoint every ``every`` steps, all kept."""
+    return ["--config", SHORT, "--set", "sample.n=128", "--set", "preparation.max_rate=2e5",
+            "--set", "preparation.servo_rate=2e5", "--set", "preparation.max_steps=1200",
+            "--set", "relax.max_steps=300", "--set", "relax.check_every=100", "--set", "dynamic.times=[0.5]",
+            "--set", "output.plot=false", "--set", f"checkpoint.every_steps={every}",
+            "--set", "checkpoint.keep=100000", "--set", "checkpoint.every_seconds=0"]
+
+
+def _run_response(args, out):
+    """The response driver on 2 ranks; returns its summary."""
+    p = subprocess.run([MPIEXEC, "-n", "2", sys.executable, "-m", "pardem.drivers.response", "--quiet"] + args
+                       + ["--out", str(out)], capture_output=True, text=True, timeout=900, cwd=ROOT)
+    assert p.returncode == 0, p.stderr[-3000:]
+    return json.loads((out / "response.json").read_text())
+
+
 @pytest.mark.skipif(MPIEXEC is None, reason="needs mpiexec")
 def test_driver_restart_in_every_stage_is_bit_for_bit(tmp_path):
     """A run killed in any stage resumes from its last checkpoint and ends with the uninterrupted
@@ -337,17 +401,8 @@ def test_driver_restart_in_every_stage_is_bit_for_bit(tmp_path):
     and its relaxations capped (not converged: the restart, not the physics, is tested)."""
     import csv
     every = 130
-    tiny = ["--config", SHORT, "--set", "sample.n=128", "--set", "preparation.max_rate=2e5",
-            "--set", "preparation.servo_rate=2e5", "--set", "preparation.max_steps=1200",
-            "--set", "relax.max_steps=300", "--set", "relax.check_every=100", "--set", "dynamic.times=[0.5]",
-            "--set", "output.plot=false", "--set", f"checkpoint.every_steps={every}",
-            "--set", "checkpoint.keep=100000", "--set", "checkpoint.every_seconds=0"]
-    run = [MPIEXEC, "-n", "2", sys.executable, "-m", "pardem.drivers.response", "--quiet"]
-
-    def go(args, out):
-        p = subprocess.run(run + args + ["--out", str(out)], capture_output=True, text=True, timeout=900, cwd=ROOT)
-        assert p.returncode == 0, p.stderr[-3000:]
-        return json.loads((out / "response.json").read_text())
+    tiny = _tiny_deck(every)
+    go = _run_response
 
     a = go(tiny, tmp_path / "a")
     assert a["finished"] and a["stage"] == "done" and a["result"]["force"] > 0.0
@@ -382,3 +437,25 @@ def test_driver_restart_in_every_stage_is_bit_for_bit(tmp_path):
     pvd = (out / "response_vtk" / "response.pvd").read_text()
     assert pvd.count("<DataSet") == 2 and "b2/response_vtk/response-000.vtu" in pvd
     assert s["stage_steps"] == steps        # the stage clock is carried across the restarts
+
+
+@pytest.mark.skipif(MPIEXEC is None, reason="needs mpiexec")
+def test_driver_restart_between_load_points_is_bit_for_bit(tmp_path):
+    """``load.points = 2``: a run restarted from its checkpoint inside the second point's
+    reference relaxation (the first point's load taken off, its static response kept only in the
+    checkpoint) ends with the uninterrupted run's result, bit for bit (same 2 ranks). Oracle: the
+    uninterrupted run."""
+    every = 130
+    args = _tiny_deck(every) + ["--set", "load.points=2"]
+    a = _run_response(args, tmp_path / "a")
+    r = a["result"]
+    assert a["finished"] and len(r["static_points"]) == 2 and r["static"]["points"] == 2
+    p0, p1 = r["static_points"]
+    assert p0["loaded_gid"] != p1["loaded_gid"]
+    start = a["stage_steps"]["prepare"] + p0["reference"]["steps"] + a["stage_steps"]["dynamic"] + p0["static"]["steps"]
+    k = (start // every + 1) * every
+    assert start < k < start + p1["reference"]["steps"]
+    ck = tmp_path / "a" / "checkpoints" / f"checkpoint-{k:010d}.h5"
+    b = _run_response(["--restart", str(ck)], tmp_path / "b")
+    assert b["finished"] and b["steps"] == a["steps"]
+    assert _result_without_timings(b) == _result_without_timings(a)

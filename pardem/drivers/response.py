@@ -9,13 +9,16 @@ optionally replicated k_x x k_y times, opened along y with a clamped bottom row 
 (loaded by its reference force, or clamped), friction restored; after relaxing to the reference
 equilibrium, the free grain at the top centre gets an extra downward force F (a fraction of the
 mean contact force); the dynamic (undamped) response is recorded at a few times, then the static
-one after relaxing again. ``pardem.protocols.response`` describes the protocol and the measures.
+one after relaxing again; with ``load.points = K`` the load then goes in turn on K grains along the
+top (each measured against the packing relaxed unloaded just before it) and the static profiles
+are averaged. ``pardem.protocols.response`` describes the protocol and the measures.
 
 Writes ``DIR/response.json`` (the summary: the force F, the loaded grain, the wave speed, height
 and transit time, the reference state, ``static`` and ``dynamic`` (each: x and depth bin centres
 [m], ``dsigma_yy`` [nz][nx] [Pa], ``transmitted_over_F`` per layer, profile widths, the same for
-Flamant's half-plane and the layer on a rigid base, the width fits), the reactions of the rows,
-geometry, deck, timings), ``DIR/response.csv`` and ``DIR/response.h5`` (one row per relaxation
+Flamant's half-plane and the layer on a rigid base, the width fits; with several load points
+``static`` is their average, with ``dsigma_yy_sem`` and ``points``, and ``static_points`` has each
+point's own), the reactions of the rows, geometry, deck, timings), ``DIR/response.csv`` and ``DIR/response.h5`` (one row per relaxation
 check: ``pardem.protocols.response.SERIES_COLUMNS``), ``DIR/response.png`` (needs matplotlib),
 ``DIR/response_vtk/response.pvd`` (the perturbation per grain, ``output.perturbation_vtk``) and
 ParaView snapshots of the whole state in ``DIR/paraview`` (``output.vtk_every``), checkpoints in

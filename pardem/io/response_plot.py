@@ -78,8 +78,10 @@ def plot(path, result):
     a.set_ylabel("-dsigma_yy t d / F [-]")
     for a in ax.ravel():
         a.grid(alpha=0.3)
+    k = st.get("points", 1)
     fig.suptitle(f"point-load response: F = {F:.3g} N, {result['geometry']['n_grains']} grains, "
-                 f"t = {t:.3g} m (stress per unit area / t)", fontsize=10)
+                 f"t = {t:.3g} m (stress per unit area / t)"
+                 + (f"; static: mean over {k} load points, dynamic: the first" if k > 1 else ""), fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

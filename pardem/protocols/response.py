@@ -43,12 +43,21 @@ Protocol (any number of ranks; every step is collective):
    transit time ``H / c``) the response is recorded.
 7. **Static response.** The damping is switched on again and the packing relaxes to the
    equilibrium criteria of step 4.
+8. **More load points** (``load.points = K`` > 1). One packing's response to 1 % of the mean
+   contact force follows its force chains; the profile that compares with a continuum is an
+   average. The load is taken off (its force set to zero), the packing relaxed again to the
+   criteria of step 4 (the next point's reference), and the same force F put on the grain chosen
+   as in step 5 at ``x = x_lo + L_x (1/2 + p/K)``; its static response is measured against that
+   reference. Points 1 to K-1 have no dynamic stage. The static result is then the average over
+   the K points of the profiles binned around each loaded grain (the bins are the same for every
+   point: they depend on ``L_x`` and the deck only; the layers below the shallowest common depth
+   are kept), with the standard error of each bin, and every point's own measures.
 
 Restart (the driver's ``--restart``, ``--steps``): the stage (preparation, reference, dynamic,
-static), where its relaxation started, the wave speed, the load and the next dynamic snapshot are
-a JSON state (``new_state``); the rows, the dead loads of a free top and the clamps' last
-reactions (``layer_state``), the gathered reference state and the dynamic responses so far
-(``response_arrays``) go into the checkpoint's ``/series``; ``restore_layer`` puts the fixes back
+static), the load point, where its relaxation started, the wave speed, the load and the next
+dynamic snapshot are a JSON state (``new_state``); the rows, the dead loads of a free top and the
+clamps' last reactions (``layer_state``), the gathered reference state, the dynamic responses and
+the load points' static responses so far (``response_arrays``) go into the checkpoint's ``/series``; ``restore_layer`` puts the fixes back
 in the uninterrupted run's order without re-applying them to the restored forces, so the run
 continues bit for bit on the same ranks. The replicated and opened case continues the step count
 and clock of the preparation (``engine.granular.continue_clock``).
@@ -144,6 +153,10 @@ SCHEMA = Schema({
         "fraction": Field(0.01, number(0.0, 1.0), "extra vertical force F on the top-centre grain, as a "
                                                   "fraction of the mean contact force"),
         "friction": Field(0.3, number(lo=0.0, lo_open=False), "contact friction of the response (0: variant)"),
+        "points": Field(1, number(lo=1, hi=64, lo_open=False, hi_open=False, integer=True),
+                        "load points K: the force goes in turn on K top grains L_x / K apart, each "
+                        "measured against the packing relaxed just before it; the static profiles are "
+                        "averaged"),
     },
     "relax": {
         "damping": Field("auto", auto_or(positive()),
@@ -333,6 +346,8 @@ class Layer:
         self.damping = 0.0
         self.ref = None          # rank 0: the reference state (``gather_state``), once measured
         self.records = None      # rank 0: the dynamic responses measured so far (list of dicts)
+        self.points = None       # rank 0: the static responses of the load points done (list of dicts)
+        self.last_per_grain = None   # rank 0: the last static response per grain (``measure``'s)
 
     @property
     def sim(self):
@@ -491,11 +506,14 @@ def response_arrays(layer):
         out["ref_radius"] = layer.ref["radius"]
     if layer.records is not None:
         out["records_json"] = np.frombuffer(json.dumps(layer.records).encode(), dtype=np.uint8)
+    if layer.points:
+        out["points_json"] = np.frombuffer(json.dumps(layer.points).encode(), dtype=np.uint8)
     return out
 
 
 def restore_response(layer, series):
-    """Put back rank 0's reference state and dynamic records (``response_arrays``) into ``layer``."""
+    """Put back rank 0's reference state, dynamic records and load points (``response_arrays``)
+    into ``layer``."""
     if not layer.sim.comm.is_root:
         return
     if "ref_x" in series:
@@ -505,6 +523,8 @@ def restore_response(layer, series):
                      "radius": np.asarray(series["ref_radius"], np.float64)}
     if "records_json" in series:
         layer.records = json.loads(bytes(np.asarray(series["records_json"], np.uint8)).decode())
+    if "points_json" in series:
+        layer.points = json.loads(bytes(np.asarray(series["points_json"], np.uint8)).decode())
 
 
 def wave_speed(layer):
@@ -549,32 +569,41 @@ def relax_layer(layer, deck, label, progress=None, operations=(), on_check=None,
                      start=start, run=_Run(operations, on_check, stop))
 
 
-def loaded_grain(layer):
+def loaded_grain(layer, shift=0.0):
     """The gid of the highest grain not held by a row (with ``boundary.top = "free"`` the top row's
-    grains count) whose centre lies within one mean diameter of the top
-    centre line ``x = x_lo + L_x / 2`` (collective)."""
+    grains count) whose centre lies within one mean diameter of the line
+    ``x = x_lo + L_x (1/2 + shift)`` (periodic; collective)."""
     sim = layer.sim
     e = sim.elements
     parts = sim.comm.allgather((e.gid[:e.n_owned], e.x[:e.n_owned, :2]))
     gid = np.concatenate([p[0] for p in parts])
     x = np.concatenate([p[1] for p in parts])
     g = layer.geometry
-    xc = g["lo"][0] + 0.5 * g["length"][0]
+    xc = g["lo"][0] + (0.5 + shift) * g["length"][0]
     free = np.isin(gid, layer.binned)
     dx = rsp.relative_x(x[:, 0], xc, g["length"][0])
     cand = free & (np.abs(dx) < g["mean_diameter"])
     if not cand.any():
-        raise ValueError("no free grain within one mean diameter of the top centre")
+        raise ValueError(f"no free grain within one mean diameter of x = {xc:.6g} m at the top")
     k = np.nonzero(cand)[0][np.argmax(x[cand, 1])]
     return int(gid[k])
 
 
-def apply_load(layer, force):
-    """Put (or change) the extra force ``(0, -force, 0)`` [N] on the loaded grain."""
+def apply_load(layer, force, gid=None):
+    """Put (or change) the extra force ``(0, -force, 0)`` [N] on grain ``gid`` (default: the
+    loaded grain, or the top-centre one, ``loaded_grain``, if none is yet). A load moved to another
+    grain replaces the old one's fix (which must carry no force then) at its place in the fixes."""
+    if gid is None:
+        gid = layer.loaded_gid if layer.load is not None else loaded_grain(layer)
+    if layer.load is not None and gid != layer.loaded_gid:
+        if np.any(layer.load.force != 0.0):
+            raise ValueError("apply_load: take the load off (force 0) before moving it to another grain")
+        layer.sim.fixes.remove(layer.load)
+        layer.load = None
     if layer.load is None:
-        layer.loaded_gid = loaded_grain(layer)
+        layer.loaded_gid = int(gid)
         layer.load = fx.ExternalForce([layer.loaded_gid], (0.0, -float(force), 0.0))
-        fx.add(layer.sim, layer.load)
+        fx.add(layer.sim, layer.load)      # its force acts on the current forces at once
     else:
         layer.load.force[:] = (0.0, -float(force), 0.0)
     layer.force = float(force)
@@ -625,35 +654,73 @@ def measure(layer, ref, cur, deck):
     z = (x0[1] - ref["x"][:, 1])[free]
     dyy = dM[free, 1, 1]
     sigma, counts = rsp.bin_stress(xr, z, dyy, x_edges, z_edges, t)
+    H = x0[1] - (g["lo"][1] + g["row_thickness"])
+    disp = cur["x"] - ref["x"]
+    out = profile_measures(sigma, counts, x_edges, z_edges, layer.force, t, Lx, H, deck["comparison"]["poisson"])
+    out.update(loaded_gid=int(layer.loaded_gid), loaded_position=x0.tolist(),
+               max_displacement=float(np.max(np.abs(disp[:, :2]))),
+               per_grain={"dM_yy": dM[:, 1, 1], "displacement": disp})
+    return out
+
+
+def profile_measures(sigma, counts, x_edges, z_edges, F, t, Lx, H, poisson):
+    """The measures of a binned response ``sigma`` [nz, nx] [Pa] (``counts`` grains per bin) of a
+    load ``F`` [N]: transmitted force per layer over F, widths, their fits, and the same for
+    Flamant (periodic images, period ``Lx`` [m]) and for the layer of height ``H`` [m] on a rigid
+    base (2D Poisson ratio ``poisson``); dict of lists (the module docstring)."""
+    sigma = np.asarray(sigma, np.float64)
     xc = 0.5 * (x_edges[1:] + x_edges[:-1])
     zc = 0.5 * (z_edges[1:] + z_edges[:-1])
     dx = np.diff(x_edges)
-    F = layer.force
     transmitted = -t * (sigma * dx[None, :]).sum(axis=1) / F        # per layer, / F
     widths = [rsp.widths(xc, -row) for row in sigma]
     fl = flamant.flamant_bin_average(x_edges, zc, F, t, period=Lx, images=200)
-    H = x0[1] - (g["lo"][1] + g["row_thickness"])
-    lay = flamant.layer_sigma_zz(xc, zc, F, t, H, Lx, deck["comparison"]["poisson"], bin_width=float(dx[0]))
+    lay = flamant.layer_sigma_zz(xc, zc, F, t, H, Lx, poisson, bin_width=float(dx[0]))
     fw = [rsp.widths(xc, -row) for row in fl]
     lw = [rsp.widths(xc, -row) for row in lay]
-    disp = cur["x"] - ref["x"]
 
     def col(ws, k):
         return [None if w[k] is None else float(w[k]) for w in ws]
 
-    out = {"x": xc.tolist(), "depth": zc.tolist(), "x_edges": x_edges.tolist(), "z_edges": z_edges.tolist(),
-           "dsigma_yy": sigma.tolist(), "grains_per_bin": counts.tolist(),
-           "transmitted_over_F": transmitted.tolist(),
-           "width_second_moment": col(widths, 0), "width_half_max": col(widths, 1),
-           "flamant": {"dsigma_yy": fl.tolist(), "width_second_moment": col(fw, 0),
-                       "width_half_max": col(fw, 1)},
-           "layer_on_rigid_base": {"dsigma_yy": lay.tolist(), "width_second_moment": col(lw, 0),
-                                   "width_half_max": col(lw, 1), "height": float(H),
-                                   "poisson": deck["comparison"]["poisson"]},
-           "fits_half_max": rsp.fit_widths(zc, [np.nan if w[1] is None else w[1] for w in widths]),
-           "fits_second_moment": rsp.fit_widths(zc, [np.nan if w[0] is None else w[0] for w in widths]),
-           "max_displacement": float(np.max(np.abs(disp[:, :2]))),
-           "per_grain": {"dM_yy": dM[:, 1, 1], "displacement": disp}}
+    return {"x": xc.tolist(), "depth": zc.tolist(), "x_edges": np.asarray(x_edges).tolist(),
+            "z_edges": np.asarray(z_edges).tolist(),
+            "dsigma_yy": sigma.tolist(), "grains_per_bin": np.asarray(counts).tolist(),
+            "transmitted_over_F": transmitted.tolist(),
+            "width_second_moment": col(widths, 0), "width_half_max": col(widths, 1),
+            "flamant": {"dsigma_yy": fl.tolist(), "width_second_moment": col(fw, 0),
+                        "width_half_max": col(fw, 1)},
+            "layer_on_rigid_base": {"dsigma_yy": lay.tolist(), "width_second_moment": col(lw, 0),
+                                    "width_half_max": col(lw, 1), "height": float(H), "poisson": poisson},
+            "fits_half_max": rsp.fit_widths(zc, [np.nan if w[1] is None else w[1] for w in widths]),
+            "fits_second_moment": rsp.fit_widths(zc, [np.nan if w[0] is None else w[0] for w in widths])}
+
+
+POINT_KEYS = ("loaded_gid", "loaded_position", "dsigma_yy", "grains_per_bin", "transmitted_over_F",
+              "width_second_moment", "width_half_max", "max_displacement", "reference", "static", "bottom_share",
+              "top_share")
+POINT_BINS = ("x_edges", "z_edges", "force")
+
+
+def average_points(points, geometry, poisson):
+    """The static response averaged over load points (``points``: each a dict of ``POINT_KEYS``
+    with ``x_edges``, ``z_edges`` and ``force``, the same F and x bins for all): the mean profile
+    over the layers every point has, its measures (``profile_measures``; the layer on a rigid base
+    at the mean height below the loads), ``dsigma_yy_sem`` (standard error of each bin's mean over
+    the points, [Pa]) and ``points`` (K)."""
+    nz = min(len(p["dsigma_yy"]) for p in points)
+    x_edges = np.asarray(points[0]["x_edges"])
+    for p in points:
+        if not np.array_equal(np.asarray(p["x_edges"]), x_edges) or p["force"] != points[0]["force"]:
+            raise ValueError("load points with different x bins or forces cannot be averaged")
+    stack = np.array([np.asarray(p["dsigma_yy"])[:nz] for p in points])
+    counts = np.sum([np.asarray(p["grains_per_bin"])[:nz] for p in points], axis=0)
+    K = len(points)
+    sem = stack.std(axis=0, ddof=1) / math.sqrt(K) if K > 1 else np.zeros_like(stack[0])
+    bottom_line = geometry["lo"][1] + geometry["row_thickness"]
+    H = float(np.mean([p["loaded_position"][1] - bottom_line for p in points]))
+    out = profile_measures(stack.mean(axis=0), counts, x_edges, np.asarray(points[0]["z_edges"])[:nz + 1],
+                           points[0]["force"], geometry["thickness"], geometry["length"][0], H, poisson)
+    out.update(dsigma_yy_sem=sem.tolist(), points=K)
     return out
 
 
@@ -670,7 +737,7 @@ def new_state():
     """The JSON-able state of ``respond`` before it starts (stage ``reference``)."""
     return {"stage": "reference", "start": None, "wave": None, "reference": None, "top0": None,
             "bottom0": None, "force": None, "loaded_gid": None, "loaded_position": None, "dyn_start": None,
-            "t_load": None, "dyn_index": 0, "static": None}
+            "t_load": None, "dyn_index": 0, "static": None, "point": 0, "point_reference": None}
 
 
 def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=None, state=None, stop=None,
@@ -709,78 +776,137 @@ def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=No
         if clock is not None:
             clock.enter(name, sim.step_count)
 
-    if st["stage"] == "reference":
-        enter("reference")
-        if st["start"] is None:
-            st["start"] = sim.step_count
-        b, ok, steps = relax_layer(layer, deck, "reference", progress, operations, check, start=st["start"],
-                                   stop=stop)
-        st["reference"] = {"converged": ok, "steps": steps, "unbalanced": b["unbalanced"], "kinetic": b["kinetic"],
-                           "pressure": b["pressure"], "mean_contact_force": b["mean_contact_force"],
-                           "n_contacts": b["n_contacts"]}
-        st["top0"], st["bottom0"] = layer.reactions()
-        layer.ref = gather_state(sim)
-        F = deck["load"]["fraction"] * b["mean_contact_force"]
-        apply_load(layer, F)
-        st["force"], st["loaded_gid"] = F, layer.loaded_gid
-        st["loaded_position"] = sim.comm.bcast(layer.ref["x"][layer.loaded_gid].tolist() if sim.comm.is_root
-                                               else None)
-        if progress is not None:
-            progress.say(f"reference: {steps} steps, unbalanced {b['unbalanced']:.3g}; load F = {F:.4g} N on grain "
-                         f"{layer.loaded_gid}; c = {c:.4g} m/s, H = {H:.4g} m, damping {layer.damping:.4g} 1/s")
-        st["dyn_start"], st["t_load"], st["dyn_index"] = sim.step_count, sim.time, 0
-        st["stage"] = "dynamic"
-    if st["stage"] == "dynamic":
-        # dynamic (undamped) response
-        enter("dynamic")
-        sim.viscous_damping = 0.0
-        times = deck["dynamic"]["times"]
-        while st["dyn_index"] < len(times):
-            tau = times[st["dyn_index"]]
-            target = st["dyn_start"] + int(round(tau * transit / sim.dt))
-            while sim.step_count < target:
-                if stop is not None and sim.step_count >= stop:
-                    raise StepLimit(f"stopped at step {sim.step_count} (--steps {stop}), dynamic response")
-                end = target if stop is None else min(target, stop)
-                sim.run(end - sim.step_count, list(operations))
-            cur = gather_state(sim)
-            res = measure(layer, layer.ref, cur, deck)
-            if res is not None:
-                res.update(time_after_load=sim.time - st["t_load"], time_over_transit=tau, step=sim.step_count)
-            if on_record is not None:
-                on_record(f"dynamic t = {tau:g} H/c", cur, res)
-            if res is not None:
-                res.pop("per_grain", None)
-                layer.records.append(res)
-            st["dyn_index"] += 1
-        st["stage"], st["start"] = "static", sim.step_count
-    if st["stage"] == "static":
-        # static response
-        enter("static")
-        b2, ok2, steps2 = relax_layer(layer, deck, "static", progress, operations, check, start=st["start"],
-                                      stop=stop)
-        st["static"] = {"converged": ok2, "steps": steps2, "unbalanced": b2["unbalanced"], "kinetic": b2["kinetic"]}
-        st["stage"] = "done"
+    K = deck["load"]["points"]
+    st.setdefault("point", 0)                   # (states of checkpoints written before load.points)
+    st.setdefault("point_reference", st["reference"])
+    if layer.points is None:
+        layer.points = []
+    if st["stage"] == "done" and sim.comm.bcast(not layer.points if sim.comm.is_root else None):
+        # a finished run's checkpoint without its points (written before load.points): measure now
+        point = _point_record(layer, deck, st, on_record, "static")
+        if sim.comm.is_root:
+            layer.points.append(point)
+    while st["stage"] != "done":
+        p = st["point"]
+        if st["stage"] == "reference":
+            enter("reference")
+            if st["start"] is None:
+                st["start"] = sim.step_count
+            b, ok, steps = relax_layer(layer, deck, "reference" if p == 0 else f"reference {p + 1}/{K}", progress,
+                                       operations, check, start=st["start"], stop=stop)
+            info = {"converged": ok, "steps": steps, "unbalanced": b["unbalanced"], "kinetic": b["kinetic"],
+                    "pressure": b["pressure"], "mean_contact_force": b["mean_contact_force"],
+                    "n_contacts": b["n_contacts"]}
+            st["point_reference"] = info
+            st["top0"], st["bottom0"] = layer.reactions()
+            layer.ref = gather_state(sim)
+            if p == 0:
+                st["reference"] = info
+                st["force"] = deck["load"]["fraction"] * b["mean_contact_force"]
+            F = st["force"]          # the same force at every point
+            apply_load(layer, F, loaded_grain(layer, p / K))
+            position = sim.comm.bcast(layer.ref["x"][layer.loaded_gid].tolist() if sim.comm.is_root else None)
+            if p == 0:
+                st["loaded_gid"], st["loaded_position"] = layer.loaded_gid, position
+            if progress is not None:
+                progress.say(f"reference{'' if K == 1 else f' {p + 1}/{K}'}: {steps} steps, unbalanced "
+                             f"{b['unbalanced']:.3g}; load F = {F:.4g} N on grain {layer.loaded_gid}"
+                             + (f"; c = {c:.4g} m/s, H = {H:.4g} m, damping {layer.damping:.4g} 1/s" if p == 0 else ""))
+            if p == 0:
+                st["dyn_start"], st["t_load"], st["dyn_index"] = sim.step_count, sim.time, 0
+                st["stage"] = "dynamic"
+            else:
+                st["stage"], st["start"] = "static", sim.step_count
+        if st["stage"] == "dynamic":
+            # dynamic (undamped) response
+            enter("dynamic")
+            sim.viscous_damping = 0.0
+            times = deck["dynamic"]["times"]
+            while st["dyn_index"] < len(times):
+                tau = times[st["dyn_index"]]
+                target = st["dyn_start"] + int(round(tau * transit / sim.dt))
+                while sim.step_count < target:
+                    if stop is not None and sim.step_count >= stop:
+                        raise StepLimit(f"stopped at step {sim.step_count} (--steps {stop}), dynamic response")
+                    end = target if stop is None else min(target, stop)
+                    sim.run(end - sim.step_count, list(operations))
+                cur = gather_state(sim)
+                res = measure(layer, layer.ref, cur, deck)
+                if res is not None:
+                    res.update(time_after_load=sim.time - st["t_load"], time_over_transit=tau, step=sim.step_count)
+                if on_record is not None:
+                    on_record(f"dynamic t = {tau:g} H/c", cur, res)
+                if res is not None:
+                    res.pop("per_grain", None)
+                    layer.records.append(res)
+                st["dyn_index"] += 1
+            st["stage"], st["start"] = "static", sim.step_count
+        if st["stage"] == "static":
+            # static response
+            enter("static")
+            b2, ok2, steps2 = relax_layer(layer, deck, "static" if K == 1 else f"static {p + 1}/{K}", progress,
+                                          operations, check, start=st["start"], stop=stop)
+            st["static"] = {"converged": ok2, "steps": steps2, "unbalanced": b2["unbalanced"], "kinetic": b2["kinetic"]}
+            point = _point_record(layer, deck, st, on_record, f"static {p + 1}/{K}" if K > 1 else "static")
+            if sim.comm.is_root:
+                # several points: what the average and the per-point record need (not the comparisons)
+                layer.points.append(point if K == 1 else {k: point[k] for k in POINT_KEYS + POINT_BINS})
+            if p + 1 < K:
+                # the load off (its fix stays, with no force, until the next grain takes it); the
+                # packing relaxes to the next point's reference
+                layer.load.force[:] = 0.0
+                layer.force = 0.0
+                st["point"], st["stage"], st["start"] = p + 1, "reference", sim.step_count
+            else:
+                st["stage"] = "done"
     if clock is not None:
         clock.close(sim.step_count)
-    top1, bottom1 = layer.reactions()
-    cur = gather_state(sim)
-    static = measure(layer, layer.ref, cur, deck)
-    if on_record is not None:
-        on_record("static", cur, static)
     if not sim.comm.is_root:
         return None
     F = st["force"]
-    per_grain = static.pop("per_grain")
-    return {"force": F, "loaded_gid": layer.loaded_gid, "loaded_position": st["loaded_position"],
-            "wave_speed": c, "height": H, "transit_time": transit, "damping": layer.damping,
-            "reference": st["reference"],
-            "static": dict(static, **st["static"]),
-            "dynamic": list(layer.records),
-            "reactions": {"top_share": -(top1 - st["top0"]) / F, "bottom_share": -(bottom1 - st["bottom0"]) / F,
-                          "top_reference": st["top0"], "bottom_reference": st["bottom0"]},
-            "geometry": {k: v for k, v in layer.geometry.items() if k not in ("y", "radius")},
-            "seconds": time.perf_counter() - t0, "_per_grain": per_grain}
+    points = layer.points
+    last = points[-1]
+    if K == 1:
+        static = {k: v for k, v in last.items() if k not in ("reference", "static", "bottom_share", "top_share",
+                                                               "force", "loaded_gid", "loaded_position")}
+        static.update(st["static"])
+    else:
+        static = average_points(points, layer.geometry, deck["comparison"]["poisson"])
+        static.update(converged=all(q["static"]["converged"] for q in points),
+                      steps=int(sum(q["static"]["steps"] for q in points)),
+                      unbalanced=max(q["static"]["unbalanced"] for q in points),
+                      kinetic=max(q["static"]["kinetic"] for q in points))
+    out = {"force": F, "loaded_gid": st["loaded_gid"], "loaded_position": st["loaded_position"],
+           "wave_speed": c, "height": H, "transit_time": transit, "damping": layer.damping,
+           "reference": st["reference"],
+           "static": static,
+           "dynamic": list(layer.records),
+           "reactions": {"top_share": float(np.mean([q["top_share"] for q in points])),
+                         "bottom_share": float(np.mean([q["bottom_share"] for q in points])),
+                         "top_reference": st["top0"], "bottom_reference": st["bottom0"]},
+           "geometry": {k: v for k, v in layer.geometry.items() if k not in ("y", "radius")},
+           "seconds": time.perf_counter() - t0, "_per_grain": layer.last_per_grain}
+    if K > 1:
+        out["static_points"] = [{k: q[k] for k in POINT_KEYS} for q in points]
+    return out
+
+
+def _point_record(layer, deck, st, on_record, label):
+    """Measure the static response of the current load point (collective); rank 0 gets the
+    record (``measure``'s, with the point's relaxations, the rows' shares of F, the force and the
+    bins), None elsewhere; its per-grain fields go to ``on_record`` and ``layer.last_per_grain``."""
+    top1, bottom1 = layer.reactions()
+    cur = gather_state(layer.sim)
+    res = measure(layer, layer.ref, cur, deck)
+    if on_record is not None:
+        on_record(label, cur, res)
+    if res is None:
+        return None
+    layer.last_per_grain = res.pop("per_grain")
+    F = st["force"]
+    res.update(reference=st["point_reference"], static=st["static"], force=F,
+               top_share=-(top1 - st["top0"]) / F, bottom_share=-(bottom1 - st["bottom0"]) / F)
+    return res
 
 
 __all__ = ["SCHEMA", "RigidRow", "Layer", "prepared", "make_layer", "respond", "measure", "gather_state",

@@ -44,20 +44,20 @@ def lattice_case(comm, nx=12, ny=12, spacing=0.999):
     return case, h
 
 
-def deck_for(top="free", fraction=0.01, friction=0.3, copies=(1, 1), force_tolerance=1e-9):
+def deck_for(top="free", fraction=0.01, friction=0.3, copies=(1, 1), force_tolerance=1e-9, points=1):
     return check_deck(response.SCHEMA, {
         "sample": {"n": 144, "radii": [R], "fractions": [1.0], "density": DENSITY},
         "material": MATERIAL, "boundary": {"top": top}, "replicate": {"copies": list(copies)},
-        "load": {"fraction": fraction, "friction": friction},
+        "load": {"fraction": fraction, "friction": friction, "points": points},
         "relax": {"force_tolerance": force_tolerance, "kinetic_tolerance": 1e-20, "max_steps": 60000,
                   "check_every": 100},
         "dynamic": {"times": []}, "output": {"perturbation_vtk": False, "plot": False}})
 
 
-def run(comm, top="free", fraction=0.01, friction=0.3, copies=(1, 1)):
+def run(comm, top="free", fraction=0.01, friction=0.3, copies=(1, 1), points=1):
     """``(result, layer, row spacing)`` of the lattice's response (result on rank 0 only)."""
     case, h = lattice_case(comm)
-    deck = deck_for(top, fraction, friction, copies)
+    deck = deck_for(top, fraction, friction, copies, points=points)
     layer = response.make_layer(comm, case, deck)
     return response.respond(layer, deck), layer, h
 
