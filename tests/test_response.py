@@ -199,6 +199,18 @@ def test_load_points_on_a_lattice_are_translates_and_their_mean_is_the_static_re
     assert res["dynamic"] == []
 
 
+def test_tolerance_note_is_the_residual_bound():
+    """The start-of-run note: the bound 2 N tol / fraction (``_residual_bound`` with both
+    relaxations at the tolerance), silent below 1 % of F, and the tolerance it suggests meets it."""
+    assert response.residual_share(90000, 1e-9, 0.01) == pytest.approx(0.018, rel=1e-12)
+    assert response.residual_share(144, 1e-9, 0.01) == pytest.approx(
+        _residual_bound({"n": 144, "u_ref": 1e-9, "u_static": 1e-9, "mean_contact_force": 1.0, "force": 0.01}) - 1e-9)
+    assert response.tolerance_note(10000, 1e-8, 0.01) is not None and "0.02 F" in response.tolerance_note(10000, 1e-8, 0.01)
+    assert response.tolerance_note(144, 1e-9, 0.01) is None
+    suggested = float(response.tolerance_note(90000, 1e-9, 0.01).split("at most ")[1].split(" ")[0])
+    assert response.residual_share(90000, suggested, 0.01) <= 0.01 * 1.01      # (2 significant digits)
+
+
 def test_lattice_response_with_a_fixed_top_splits_the_load():
     comm = Communicator()
     res, layer, h = response_run.run(comm, top="fixed")

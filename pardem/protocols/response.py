@@ -162,7 +162,9 @@ SCHEMA = Schema({
         "damping": Field("auto", auto_or(positive()),
                          "global viscous damping C [1/s] of the relaxations; auto = pi c / H (twice the "
                          "lowest angular frequency of the layer)"),
-        "force_tolerance": Field(1e-6, positive(), "mean unbalanced force / mean contact force below this"),
+        "force_tolerance": Field(1e-6, positive(), "mean unbalanced force / mean contact force below this (the "
+                                                   "residual forces may move up to 2 N tol / load.fraction of F; "
+                                                   "the run notes it when above 1 %)"),
         "kinetic_tolerance": Field(1e-14, positive(), "E_k / (N p V_mean) below this"),
         "check_every": Field(200, number(lo=1, lo_open=False, integer=True), "steps between checks"),
         "max_steps": Field(300000, number(lo=1, lo_open=False, integer=True),
@@ -569,6 +571,24 @@ def relax_layer(layer, deck, label, progress=None, operations=(), on_check=None,
                      start=start, run=_Run(operations, on_check, stop))
 
 
+def residual_share(n, force_tolerance, fraction):
+    """The bound on the rows' share of F that the relaxations' residual forces can move:
+    ``N (u_ref + u_static) <f_c> / F = 2 N tol / fraction`` (``unbalanced`` = mean |R| over the
+    mean contact force, at most ``force_tolerance`` in each relaxation; F = ``fraction`` <f_c>)."""
+    return 2.0 * n * force_tolerance / fraction
+
+
+def tolerance_note(n, force_tolerance, fraction, share=0.01):
+    """A one-line note when ``relax.force_tolerance`` lets the residual forces of ``n`` grains
+    move more than ``share`` of F (``residual_share``), else None."""
+    bound = residual_share(n, force_tolerance, fraction)
+    if bound <= share:
+        return None
+    return (f"note: relax.force_tolerance = {force_tolerance:g} lets the residual forces of {n} grains move up to "
+            f"{bound:.3g} F (2 N tol / load.fraction); at most {share * fraction / (2.0 * n):.2g} keeps it "
+            f"within {share:g} F")
+
+
 def loaded_grain(layer, shift=0.0):
     """The gid of the highest grain not held by a row (with ``boundary.top = "free"`` the top row's
     grains count) whose centre lies within one mean diameter of the line
@@ -762,6 +782,10 @@ def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=No
         st["wave"] = {"c": c, "H": H, "transit": H / c, "damping": math.pi * c / H if d == "auto" else float(d)}
     c, H, transit = st["wave"]["c"], st["wave"]["H"], st["wave"]["transit"]
     layer.damping = st["wave"]["damping"]
+    if progress is not None and st["stage"] == "reference" and st["point"] == 0 and st["start"] is None:
+        note = tolerance_note(layer.geometry["n_grains"], deck["relax"]["force_tolerance"], deck["load"]["fraction"])
+        if note:
+            progress.say(note)
     if layer.records is None:
         layer.records = []
 
