@@ -782,6 +782,8 @@ def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=No
         st["wave"] = {"c": c, "H": H, "transit": H / c, "damping": math.pi * c / H if d == "auto" else float(d)}
     c, H, transit = st["wave"]["c"], st["wave"]["H"], st["wave"]["transit"]
     layer.damping = st["wave"]["damping"]
+    st.setdefault("point", 0)                   # (states of checkpoints written before load.points)
+    st.setdefault("point_reference", st["reference"])
     if progress is not None and st["stage"] == "reference" and st["point"] == 0 and st["start"] is None:
         note = tolerance_note(layer.geometry["n_grains"], deck["relax"]["force_tolerance"], deck["load"]["fraction"])
         if note:
@@ -801,8 +803,6 @@ def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=No
             clock.enter(name, sim.step_count)
 
     K = deck["load"]["points"]
-    st.setdefault("point", 0)                   # (states of checkpoints written before load.points)
-    st.setdefault("point_reference", st["reference"])
     if layer.points is None:
         layer.points = []
     if st["stage"] == "done" and sim.comm.bcast(not layer.points if sim.comm.is_root else None):
