@@ -211,6 +211,37 @@ def test_a_signal_while_building_the_case_ends_the_run_at_once(tmp_path):
     assert lines == ["pardem: stopped by SIGTERM before the first time step; nothing to save"], job.stderr
 
 
+def test_a_signal_to_one_other_rank_while_building_ends_the_job_from_that_rank(tmp_path):
+    """SIGTERM to rank 1 alone while the case is built: rank 1 does not wait in its handler (rank
+    0 may be inside a collective waiting for it), and ends the job ``FOLLOW_SECONDS`` later with a
+    line naming itself, since rank 0 never heard of the signal."""
+    from pardem.parallel.communicator import FOLLOW_SECONDS
+    job = Job(["-m", "pardem.drivers.compress", "--set", "domain.kind=compact", "--set", "domain.radius=0.0002",
+               "--out", str(tmp_path / "run"), "--quiet"])
+    end = time.monotonic() + 120
+    try:
+        _wait_for_handlers(job, end)
+        (rank_1,) = [r for r in rank_pids(job.p.pid) if _pmi_rank(r) == "1"]
+        t0 = time.monotonic()
+        os.kill(rank_1, signal.SIGTERM)
+        code = job.finish(timeout=120)
+        elapsed = time.monotonic() - t0
+    finally:
+        job.kill()
+    assert code == 143, job.stderr
+    # FOLLOW_SECONDS, then the abort; 10 s more for a machine shared by other jobs
+    assert FOLLOW_SECONDS <= elapsed < FOLLOW_SECONDS + 10.0, elapsed
+    lines = [ln for ln in job.stderr.splitlines() if ln.startswith("pardem: ")]
+    assert lines == ["pardem: rank 1: stopped by SIGTERM before the first time step; nothing to save"], job.stderr
+
+
+def _pmi_rank(pid):
+    """The MPI rank of process ``pid`` (hydra sets ``PMI_RANK`` in each rank's environment)."""
+    with open(f"/proc/{pid}/environ", "rb") as f:
+        env = dict(item.split(b"=", 1) for item in f.read().split(b"\0") if b"=" in item)
+    return env.get(b"PMI_RANK", b"").decode()
+
+
 def _wait_for_handlers(job, end):
     while time.monotonic() < end:
         ranks = rank_pids(job.p.pid)

@@ -221,9 +221,7 @@ def stop_signals(comm):
 
 
 def _exit_now(comm, signum, why):
-    if comm.is_root:
-        os.write(2, f"pardem: stopped by {_signal_name(signum)} {why}\n".encode())
-    exit_now(EXIT_SIGNAL + signum, comm.rank)
+    exit_now(EXIT_SIGNAL + signum, comm.rank, f"stopped by {_signal_name(signum)} {why}")
 
 
 def output_dir(comm, args, driver):

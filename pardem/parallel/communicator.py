@@ -5,6 +5,7 @@ without ``mpiexec`` works the same way (MPI singleton).
 """
 import os
 import sys
+import threading
 import time
 import traceback
 
@@ -12,6 +13,7 @@ import numpy as np
 
 
 ABORT_GRACE_SECONDS = 1.0
+FOLLOW_SECONDS = 5.0       # exit_now: another rank ends the job this long after a signal rank 0 did not act on
 IDLE_POLL_SECONDS = 0.05    # wait_for_all's sleep between polls: 50 ms late at most, for cases of minutes
 
 
@@ -144,22 +146,47 @@ def srun_task(rank, size):
             and ("PMI_JOBID" in env or "PMIX_RANK" in env))
 
 
-def exit_now(code, rank=0):
-    """End the job with ``code`` at once, from a signal handler every rank received (no Python
-    clean-up, no exception raised). With MPI: ``MPI_Abort`` from rank 0 (the others follow after
-    a moment if still alive); ``os._exit`` alone is not enough: mpiexec.mpich reported such a job,
-    after forwarding the signal, as exit code 0 in 2 of 3 tries, and ``MPI_Finalize`` in a
-    handler can wait for ever."""
+def exit_now(code, rank, message):
+    """End the job with ``code`` from a signal handler every rank received (no Python clean-up,
+    no exception raised); ``pardem: <message>`` goes to stderr from the rank that ends it (with
+    ``rank R:`` when it is not rank 0).
+
+    With MPI: rank 0 writes the line and calls ``MPI_Abort`` at once; ``os._exit`` alone is not
+    enough (mpiexec.mpich reported such a job, after forwarding the signal, as exit code 0 in 2 of
+    3 tries) and ``MPI_Finalize`` in a handler can wait for ever. Another rank returns at once and
+    leaves a thread that ends the job ``FOLLOW_SECONDS`` later (its line naming the rank) if
+    rank 0 has not: its main thread must go on, since rank 0 may be inside a collective waiting for
+    it and could not run its own handler before that collective ends (a handler that slept there
+    aborted the job before rank 0 wrote its line). Under srun every task is signalled and srun
+    reports the tasks' own exit codes: each task leaves with ``code``.
+    """
     from mpi4py import MPI
-    sys.stdout.flush()
-    sys.stderr.flush()
     size = MPI.COMM_WORLD.Get_size() if MPI.Is_initialized() and not MPI.Is_finalized() else 1
-    # srun and scancel signal every task, and srun reports the tasks' own exit codes: no abort
     if size > 1 and not srun_task(rank, size):
         if rank != 0:
-            time.sleep(2.0)
+            threading.Thread(target=_follow, args=(code, f"pardem: rank {rank}: {message}"),
+                             name="pardem-exit", daemon=True).start()
+            return
+        _write_line(f"pardem: {message}")
         MPI.COMM_WORLD.Abort(code)
+    if rank == 0:
+        _write_line(f"pardem: {message}")
     os._exit(code)
+
+
+def _write_line(line):
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.write(2, f"{line}\n".encode())
+
+
+def _follow(code, line):
+    """Rank 0 did not end the job within ``FOLLOW_SECONDS`` (it was not signalled, or is stuck):
+    this rank ends it."""
+    from mpi4py import MPI
+    time.sleep(FOLLOW_SECONDS)
+    _write_line(line)
+    MPI.COMM_WORLD.Abort(code)
 
 
 def report_and_abort(comm, exc, code=1):

@@ -332,6 +332,9 @@ def _compact_domain(comm, dom, axis, packing=None):
                 result = compact.compact_packing(*args)
             except ValueError as err:
                 result = str(err)
+        # the other ranks wait asleep, not in the broadcast's busy poll: a core stays free and their
+        # signal handlers can run (a blocking MPI call defers them to its end)
+        comm.wait_for_all()
         packing = comm.bcast(result)
         if isinstance(packing, str):
             raise DeckError(f"{where} (compact, seed {dom['seed']}, dispersity {dom['dispersity']}): "
