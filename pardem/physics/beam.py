@@ -375,8 +375,9 @@ def _bond_loop(damped, breakable, densify):
                 if breakable:
                     if state[b] != 0:
                         continue
-                i = bi[b]
-                j = bj[b]
+                # unsigned rows: no negative-index wrap-around code per access
+                i = np.uint64(bi[b])
+                j = np.uint64(bj[b])
                 g[G_CHORD, k] = x[j, 0] - x[i, 0]
                 g[G_CHORD + 1, k] = x[j, 1] - x[i, 1]
                 g[G_CHORD + 2, k] = x[j, 2] - x[i, 2]
@@ -442,15 +443,16 @@ def _bond_loop(damped, breakable, densify):
                 fi0 += res[OUT_FORCE_1, k]
                 fi1 += res[OUT_FORCE_1 + 1, k]
                 fi2 += res[OUT_FORCE_1 + 2, k]
-                f[j, 0] -= res[OUT_FORCE_1, k]
-                f[j, 1] -= res[OUT_FORCE_1 + 1, k]
-                f[j, 2] -= res[OUT_FORCE_1 + 2, k]
+                ju = np.uint64(j)
+                f[ju, 0] -= res[OUT_FORCE_1, k]
+                f[ju, 1] -= res[OUT_FORCE_1 + 1, k]
+                f[ju, 2] -= res[OUT_FORCE_1 + 2, k]
                 ti0 += res[OUT_MOMENT_1, k]
                 ti1 += res[OUT_MOMENT_1 + 1, k]
                 ti2 += res[OUT_MOMENT_1 + 2, k]
-                t[j, 0] += res[OUT_MOMENT_2, k]
-                t[j, 1] += res[OUT_MOMENT_2 + 1, k]
-                t[j, 2] += res[OUT_MOMENT_2 + 2, k]
+                t[ju, 0] += res[OUT_MOMENT_2, k]
+                t[ju, 1] += res[OUT_MOMENT_2 + 1, k]
+                t[ju, 2] += res[OUT_MOMENT_2 + 2, k]
         if cur >= 0:
             store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
         return energy, broken, counted

@@ -99,7 +99,7 @@ def _relative_motion(dv0, dv1, dv2, wi0, wi1, wi2, wj0, wj1, wj2, n0, n1, n2, li
 
 @lru_cache(maxsize=None)
 def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exact=False,
-              with_stress=True):
+              with_stress=True, *, history_width):
     """The compiled neighbour-list kernel of one law function and loop choice (built once).
 
     ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, c, n_owned, acc, xacc)``
@@ -109,6 +109,10 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     (0 unless ``with_energy``: its arithmetic is then left out, 8 % of the loop). ``shift``
     [n_pairs, 3] [m] and the cell's diagonal strain rate ``rate`` [3] [1/s] are read only when
     ``periodic`` and ``deforming``; ``c`` is the law's constants tuple.
+
+    ``history_width``: the columns of ``history``, compiled in as a constant (the history copies
+    then unroll; with unsigned row indices, which need no negative-index wrap-around per access,
+    10 % off the loop on GRAN, 2026-12-05).
 
     ``with_stress``: add the nine Love-Weber sums to ``acc`` (else only the contact count: the
     steps nothing reads the stress on skip their arithmetic, LAMMPS' vflag; implied by ``exact``).
@@ -136,15 +140,16 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     """
     pair = _pair(forces, engaged, bool(deforming))
     return _jit(_list_loop(bool(periodic), bool(deforming), bool(with_energy), bool(exact),
-                           bool(with_stress) or bool(exact)), pair,
+                           bool(with_stress) or bool(exact), int(history_width)), pair,
                 _name(forces, engaged), forces=forces, engaged=engaged)
 
 
 NO_XACC = np.zeros((10, NLIMB), dtype=np.int64)   # the exact accumulator of loops without ``exact``
 
 
-def _list_loop(periodic, deforming, with_energy, exact, with_stress):
+def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_width):
     B = BLOCK
+    WIDTH = history_width
 
     def loop(pi, pj, shift, rate, x, v, w, radius, mass, f, t, hist, dt, c, n_owned, acc, xacc):
         energy = 0.0
@@ -157,7 +162,7 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress):
         ok = True
         if deforming:
             g0, g1, g2 = rate[0], rate[1], rate[2]
-        width = hist.shape[1]
+        width = WIDTH                # a constant: the history copies unroll
         gat = np.empty((14, B))      # per pair: d (3), r_i, r_j, v_i - v_j (3), w_i (3), w_j (3)
         res = np.empty((11, B))      # per pair: F_i (3), T_i (3), T_j (3), energy, acts
         hb = np.empty((width, B))    # the block's history rows, one column each
@@ -170,8 +175,9 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress):
             m = min(B, n_pairs - p0)
             for k in range(m):       # gather
                 p = p0 + k
-                i = pi[p]
-                j = pj[p]
+                # unsigned rows: no negative-index wrap-around code per access (10 % of the loop)
+                i = np.uint64(pi[p])
+                j = np.uint64(pj[p])
                 if periodic:
                     s0 = shift[p, 0]
                     s1 = shift[p, 1]
@@ -255,15 +261,16 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress):
                     fi0 += o0
                     fi1 += o1
                     fi2 += o2
-                    f[j, 0] -= o0
-                    f[j, 1] -= o1
-                    f[j, 2] -= o2
+                    ju = np.uint64(j)
+                    f[ju, 0] -= o0
+                    f[ju, 1] -= o1
+                    f[ju, 2] -= o2
                     ti0 += res[3, k]
                     ti1 += res[4, k]
                     ti2 += res[5, k]
-                    t[j, 0] += res[6, k]
-                    t[j, 1] += res[7, k]
-                    t[j, 2] += res[8, k]
+                    t[ju, 0] += res[6, k]
+                    t[ju, 1] += res[7, k]
+                    t[ju, 2] += res[8, k]
                 if i < n_owned:   # counted once over the ranks (the owner of the lower gid)
                     b0 = gat[0, k]
                     b1 = gat[1, k]
@@ -403,7 +410,7 @@ def law_interface(pair_function, constants, history_width):
         forces, engaged = pair_function(params)
         loop = pair_loop(forces, engaged, shift is not None,
                          rate is not None and bool(np.any(rate != 0.0)), bool(with_energy),
-                         xacc is not None, bool(with_stress))
+                         xacc is not None, bool(with_stress), history_width=history.shape[1])
         energy = loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
                       e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history, float(dt),
                       constants(params, dt), e.n_owned, np.zeros(10) if acc is None else acc,
