@@ -291,10 +291,26 @@ def cpu_ratio(row):
     return f"{max(cp) / max(cq):.2f}" if cp and cq else "—"
 
 
+def cpu_model():
+    """The processor's model name and widest vector extension (``/proc/cpuinfo``; None where
+    unavailable): this host has moved between machines (an AVX-512 one on 2026-12-03, an AMD EPYC
+    with AVX2 on 2026-12-05), which changes the ratios."""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            info = fh.read()
+    except OSError:
+        return None
+    name = next((ln.split(":", 1)[1].strip() for ln in info.splitlines() if ln.startswith("model name")), "?")
+    flags = next((ln.split(":", 1)[1].split() for ln in info.splitlines() if ln.startswith("flags")), [])
+    simd = next((f for f in ("avx512f", "avx2", "avx", "sse4_2") if f in flags), "")
+    return f"{name}, {simd}" if simd else name
+
+
 def table(report):
     """Markdown of a report: one row per case, size and rank count, best of the repeats."""
     steps = report["steps"]
-    lines = [f"Measured {report['date']} to {report.get('date_end', '?')} on {report['machine']} ({report['cpus']} CPUs), "
+    lines = [f"Measured {report['date']} to {report.get('date_end', '?')} on {report['machine']} ({report['cpus']} CPUs"
+             f"{', ' + report['cpu'] if report.get('cpu') else ''}), "
              f"interleaved pardem / peer, best of {report['repeats']}; element-steps per second "
              f"({report['warmup']} warm-up + {steps} timed steps). Load: largest CPU share other "
              "processes took during a run, in cores (> 0.15: the figure is not valid).", "",
@@ -354,7 +370,7 @@ def main():
     work = tempfile.mkdtemp(prefix="compare_peers_")
     report = {"benchmark": "compare_peers", "date": datetime.datetime.now(datetime.timezone.utc)
               .strftime("%Y-%m-%d %H:%M UTC"), "machine": platform.machine(), "cpus": os.cpu_count(),
-              "load_before": os.getloadavg(), "warmup": args.warmup, "steps": args.steps,
+              "cpu": cpu_model(), "load_before": os.getloadavg(), "warmup": args.warmup, "steps": args.steps,
               "repeats": args.repeats, "work": work if args.keep else None, "rows": []}
     try:
         for case in args.cases:
