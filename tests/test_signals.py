@@ -202,7 +202,7 @@ def test_a_signal_while_building_the_case_ends_the_run_at_once(tmp_path):
         elapsed = time.monotonic() - t0
     finally:
         job.kill()
-    assert code == 143, job.stderr
+    assert code == 143, (job.stderr, job.stdout)   # both: an exit 0 with no stderr was seen once
     # the packing's FIRE relaxation runs in chunks between which the handler runs: well under the
     # build time
     assert elapsed < 15.0
