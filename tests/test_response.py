@@ -209,6 +209,13 @@ def test_tolerance_note_is_the_residual_bound():
     assert response.tolerance_note(144, 1e-9, 0.01) is None
     suggested = float(response.tolerance_note(90000, 1e-9, 0.01).split("at most ")[1].split(" ")[0])
     assert response.residual_share(90000, suggested, 0.01) <= 0.01 * 1.01      # (2 significant digits)
+    # "auto" is the tolerance whose bound is 1 % of F, silent; a number is taken as given
+    deck = {"relax": {"force_tolerance": "auto"}, "load": {"fraction": 0.02}}
+    auto = response.relax_tolerance(deck, 90000)
+    assert response.residual_share(90000, auto, 0.02) == pytest.approx(0.01, rel=1e-12)
+    assert response.tolerance_note(90000, auto, 0.02) is None
+    deck["relax"]["force_tolerance"] = 1e-7
+    assert response.relax_tolerance(deck, 90000) == 1e-7
 
 
 def test_lattice_response_with_a_fixed_top_splits_the_load():

@@ -33,7 +33,9 @@ Protocol (any number of ranks; every step is collective):
    do not change), contacts undamped, global viscous damping ``relax.damping`` (``"auto"``: twice
    the lowest angular frequency of the layer, ``pi c / (2 H)``, with ``c = sqrt(S / rho_b)`` from
    the contacts' affine stiffness ``S`` and the bulk density ``rho_b``), relaxed until the mean
-   unbalanced force is below ``relax.force_tolerance`` of the mean contact force and the kinetic
+   unbalanced force is below ``relax.force_tolerance`` of the mean contact force (``"auto"``:
+   ``0.01 load.fraction / (2 N)``, so that the residual forces of the N grains move at most 1 % of
+   the load, ``residual_share``) and the kinetic
    energy below ``relax.kinetic_tolerance`` (``pardem.protocols.isotropic.relax``).
 5. **Load.** The grain at the top centre (the highest grain not held by a row, the top row's
    grains included with ``"free"``, whose centre lies within one mean diameter of
@@ -162,9 +164,10 @@ SCHEMA = Schema({
         "damping": Field("auto", auto_or(positive()),
                          "global viscous damping C [1/s] of the relaxations; auto = pi c / H (twice the "
                          "lowest angular frequency of the layer)"),
-        "force_tolerance": Field(1e-6, positive(), "mean unbalanced force / mean contact force below this (the "
-                                                   "residual forces may move up to 2 N tol / load.fraction of F; "
-                                                   "the run notes it when above 1 %)"),
+        "force_tolerance": Field("auto", auto_or(positive()),
+                                 "mean unbalanced force / mean contact force below this (the residual forces "
+                                 "may move up to 2 N tol / load.fraction of F; the run notes it when above "
+                                 "1 %); auto = 0.01 load.fraction / (2 N): at most 1 % of F"),
         "kinetic_tolerance": Field(1e-14, positive(), "E_k / (N p V_mean) below this"),
         "check_every": Field(200, number(lo=1, lo_open=False, integer=True), "steps between checks"),
         "max_steps": Field(300000, number(lo=1, lo_open=False, integer=True),
@@ -565,10 +568,21 @@ def relax_layer(layer, deck, label, progress=None, operations=(), on_check=None,
     r = deck["relax"]
     sim = layer.sim
     sim.viscous_damping = layer.damping
-    tol = {"kinetic_tolerance": r["kinetic_tolerance"], "force_tolerance": r["force_tolerance"],
+    tol = {"kinetic_tolerance": r["kinetic_tolerance"],
+           "force_tolerance": relax_tolerance(deck, layer.geometry["n_grains"]),
            "pressure_tolerance": 1.0}
     return iso.relax(sim, tol, r["check_every"], r["max_steps"], progress=progress, label=label,
                      start=start, run=_Run(operations, on_check, stop))
+
+
+AUTO_SHARE = 0.01       # relax.force_tolerance = "auto": the residual forces move at most this share of F
+
+
+def relax_tolerance(deck, n):
+    """``relax.force_tolerance`` for a layer of ``n`` grains, "auto" resolved to the tolerance whose
+    ``residual_share`` is ``AUTO_SHARE``."""
+    tol = deck["relax"]["force_tolerance"]
+    return AUTO_SHARE * deck["load"]["fraction"] / (2.0 * n) if tol == "auto" else float(tol)
 
 
 def residual_share(n, force_tolerance, fraction):
@@ -578,7 +592,7 @@ def residual_share(n, force_tolerance, fraction):
     return 2.0 * n * force_tolerance / fraction
 
 
-def tolerance_note(n, force_tolerance, fraction, share=0.01):
+def tolerance_note(n, force_tolerance, fraction, share=AUTO_SHARE):
     """A one-line note when ``relax.force_tolerance`` lets the residual forces of ``n`` grains
     move more than ``share`` of F (``residual_share``), else None."""
     bound = residual_share(n, force_tolerance, fraction)
@@ -785,7 +799,8 @@ def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=No
     st.setdefault("point", 0)                   # (states of checkpoints written before load.points)
     st.setdefault("point_reference", st["reference"])
     if progress is not None and st["stage"] == "reference" and st["point"] == 0 and st["start"] is None:
-        note = tolerance_note(layer.geometry["n_grains"], deck["relax"]["force_tolerance"], deck["load"]["fraction"])
+        n = layer.geometry["n_grains"]
+        note = tolerance_note(n, relax_tolerance(deck, n), deck["load"]["fraction"])
         if note:
             progress.say(note)
     if layer.records is None:
@@ -902,6 +917,7 @@ def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=No
                       kinetic=max(q["static"]["kinetic"] for q in points))
     out = {"force": F, "loaded_gid": st["loaded_gid"], "loaded_position": st["loaded_position"],
            "wave_speed": c, "height": H, "transit_time": transit, "damping": layer.damping,
+           "force_tolerance": relax_tolerance(deck, layer.geometry["n_grains"]),
            "reference": st["reference"],
            "static": static,
            "dynamic": list(layer.records),
