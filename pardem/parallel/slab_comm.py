@@ -48,6 +48,7 @@ from pardem.engine.state import Bonds, Elements
 
 _TAG_FORWARD, _TAG_EXCHANGE, _TAG_BORDERS = 71, 72, 73
 GHOST_WIDTH = 13   # doubles per ghost per step: x, v, w (3 each), q (4)
+GHOST_WIDTH_NO_BONDS = 9   # x, v, w: without bonds no kernel reads a ghost's orientation
 
 
 @njit(cache=True, error_model="numpy")
@@ -58,8 +59,9 @@ def _pack_forward(x, v, w, q, rows, buf):
             buf[k, d] = x[r, d]
             buf[k, 3 + d] = v[r, d]
             buf[k, 6 + d] = w[r, d]
-        for d in range(4):
-            buf[k, 9 + d] = q[r, d]
+        if buf.shape[1] > 9:
+            for d in range(4):
+                buf[k, 9 + d] = q[r, d]
 
 
 @njit(cache=True, error_model="numpy")
@@ -70,8 +72,9 @@ def _unpack_forward(buf, start, x, v, w, q):
             x[r, d] = buf[k, d]
             v[r, d] = buf[k, 3 + d]
             w[r, d] = buf[k, 6 + d]
-        for d in range(4):
-            q[r, d] = buf[k, 9 + d]
+        if buf.shape[1] > 9:
+            for d in range(4):
+                q[r, d] = buf[k, 9 + d]
 
 
 @dataclass
@@ -152,6 +155,7 @@ class SlabComm:
         self.recv_count = {}
         self._send_buf = {}
         self._recv_buf = {}
+        self.forward_orientation = True
         self.x_build = None
         self.seconds_communicating = 0.0
         self.rebuilds = 0
@@ -303,15 +307,20 @@ class SlabComm:
         if self.comm.any(missing is not None):     # every rank raises together
             raise BondOutOfReach(f"{missing or 'a bond end is missing on another rank'}: a bond is "
                                  f"longer than the ghost range {self.ghost_range:.4g} m")
-        self._send_buf = {nb: np.empty((len(self.send_rows[nb]), GHOST_WIDTH)) for nb in self.neighbours}
-        self._recv_buf = {nb: np.empty((self.recv_count[nb], GHOST_WIDTH)) for nb in self.neighbours}
+        # the ghosts' orientations (and rotation matrices) serve the bond kernels only: refreshed
+        # every step while some rank has bonds, else sent with the ghosts at this rebuild only
+        self.forward_orientation = self.comm.any(bonds.n > 0)
+        width = GHOST_WIDTH if self.forward_orientation else GHOST_WIDTH_NO_BONDS
+        self._send_buf = {nb: np.empty((len(self.send_rows[nb]), width)) for nb in self.neighbours}
+        self._recv_buf = {nb: np.empty((self.recv_count[nb], width)) for nb in self.neighbours}
         self.x_build = new.x[:n].copy()
         return new, bonds
 
     # -- every step ---------------------------------------------------------------------------
 
     def forward(self, e):
-        """Refresh the ghost rows' x, v, w, q (and rotation matrices) from their owners."""
+        """Refresh the ghost rows' x, v, w from their owners, and q and the rotation matrices
+        while there are bonds (``forward_orientation``)."""
         reqs = []
         for nb in self.neighbours:
             if self.recv_count[nb]:
@@ -324,7 +333,8 @@ class SlabComm:
         for nb in self.neighbours:
             if self.recv_count[nb]:
                 _unpack_forward(self._recv_buf[nb], self.recv_start[nb], e.x, e.v, e.w, e.q)
-        e.refresh_rotations(e.n_owned, e.n_total)
+        if self.forward_orientation:
+            e.refresh_rotations(e.n_owned, e.n_total)
 
     def update(self, step, elements, bonds, contacts=None, pairs_freed=False, unstable=False,
                seconds_computing=0.0):

@@ -19,7 +19,8 @@ How to add a law
    * ``history_width``, ``persistent_rows``, ``normal_stiffness``, ``critical_time_step``,
      ``cutoff``, ``deck_params``, ``elastic_normal_force`` (see ``ContactLaw``);
    * ``compute, compute_all_pairs, single = pair_loop.law_interface(pair_function, constants,
-     history_width)``: the neighbour-list loop, its all-pairs twin and the one-pair diagnostics are
+     history_width, reads_mass)`` (``reads_mass(params)``: whether ``forces`` reads the masses;
+     the loop gathers them only then): the neighbour-list loop, its all-pairs twin and the one-pair diagnostics are
      the shared ones, compiled once per law function.
 
 2. One row in ``LAWS`` below. The deck's ``contacts.law`` choices should be ``("auto", "none",

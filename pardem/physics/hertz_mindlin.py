@@ -440,7 +440,13 @@ def constants(params, dt):
     return c + cement_constants(p, dt) if p.cemented else c
 
 
-compute, compute_all_pairs, single = law_interface(pair_function, constants, history_width)
+def reads_mass(params):
+    """Whether the law's ``forces`` reads the grains' masses: only its damping does."""
+    return bool(params.damped)
+
+
+compute, compute_all_pairs, single = law_interface(pair_function, constants, history_width,
+                                                  reads_mass)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -206,7 +206,13 @@ def persistent_rows(history):
     return np.zeros(len(history), dtype=bool)
 
 
-compute, compute_all_pairs, single = law_interface(pair_function, constants, history_width)
+def reads_mass(params):
+    """Whether the law's ``forces`` reads the grains' masses: only its damping does."""
+    return bool(params.damped)
+
+
+compute, compute_all_pairs, single = law_interface(pair_function, constants, history_width,
+                                                  reads_mass)
 
 
 # ---------------------------------------------------------------------------------------------

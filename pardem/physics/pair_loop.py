@@ -99,7 +99,7 @@ def _relative_motion(dv0, dv1, dv2, wi0, wi1, wi2, wj0, wj1, wj2, n0, n1, n2, li
 
 @lru_cache(maxsize=None)
 def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exact=False,
-              with_stress=True, *, history_width):
+              with_stress=True, *, history_width, with_mass=True):
     """The compiled neighbour-list kernel of one law function and loop choice (built once).
 
     ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, c, n_owned, acc, xacc)``
@@ -114,6 +114,10 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     then unroll; with unsigned row indices, which need no negative-index wrap-around per access:
     10 % off the loop alone and 6 % off a GRAN step, n = 40, 2026-12-05).
 
+    ``with_mass``: gather the masses of both ends for the law (``forces`` reads ``mass[i]``,
+    ``mass[j]``); a law that never reads them (no damping) is compiled with False, and then sees
+    ones (a fifth of the gather pass: 1.3 ns of 28 ns per pair, GRAN n = 40, 2026-12-06).
+
     ``with_stress``: add the nine Love-Weber sums to ``acc`` (else only the contact count: the
     steps nothing reads the stress on skip their arithmetic, LAMMPS' vflag; implied by ``exact``).
 
@@ -125,7 +129,8 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
 
     Blocked (issue 14): the pairs go by blocks of ``BLOCK``: a gather pass copies each pair's
     inputs (branch vector, radii, ``v_i - v_j``, ``w_i``, ``w_j``, history row, masses) into
-    block arrays, a pass with no indirect access runs the law over the block (LLVM vectorises it:
+    block arrays (the values of row ``i`` read once per run of pairs with the same ``i``: 0.8 ns
+    per pair, 2026-12-06), a pass with no indirect access runs the law over the block (LLVM vectorises it:
     four pairs per AVX2 instruction, so the long chain of square roots and divisions of one pair
     no longer bounds the loop), and a scatter pass adds the loads in pair order. The scatter keeps
     the i-side load of a run of pairs with the same ``i`` in registers (loaded once, stored when
@@ -140,14 +145,15 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     """
     pair = _pair(forces, engaged, bool(deforming))
     return _jit(_list_loop(bool(periodic), bool(deforming), bool(with_energy), bool(exact),
-                           bool(with_stress) or bool(exact), int(history_width)), pair,
+                           bool(with_stress) or bool(exact), int(history_width),
+                           bool(with_mass)), pair,
                 _name(forces, engaged), forces=forces, engaged=engaged)
 
 
 NO_XACC = np.zeros((10, NLIMB), dtype=np.int64)   # the exact accumulator of loops without ``exact``
 
 
-def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_width):
+def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_width, with_mass):
     B = BLOCK
     WIDTH = history_width
 
@@ -167,8 +173,10 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_wid
         res = np.empty((11, B))      # per pair: F_i (3), T_i (3), T_j (3), energy, acts
         hb = np.empty((width, B))    # the block's history rows, one column each
         hT = hb.T                    # [B, width], unit stride along the block
-        mb = np.empty(2 * B)         # masses of the i ends, then of the j ends
+        mb = np.ones(2 * B)          # masses of the i ends, then of the j ends (with_mass)
         n_pairs = pi.shape[0]
+        ci = np.uint64(x.shape[0])   # the row whose values are in xi, rad_i, vi, wi, mass_i
+        xi0 = xi1 = xi2 = rad_i = vi0 = vi1 = vi2 = wi0 = wi1 = wi2 = mass_i = 0.0
         cur = -1                     # the row whose i-side loads are in fi, ti
         fi0 = fi1 = fi2 = ti0 = ti1 = ti2 = 0.0
         for p0 in range(0, n_pairs, B):
@@ -182,25 +190,40 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_wid
                     s0 = shift[p, 0]
                     s1 = shift[p, 1]
                     s2 = shift[p, 2]
+                if i != ci:          # a new run of pairs with this i: its row read once
+                    ci = i
+                    xi0 = x[i, 0]
+                    xi1 = x[i, 1]
+                    xi2 = x[i, 2]
+                    rad_i = radius[i]
+                    vi0 = v[i, 0]
+                    vi1 = v[i, 1]
+                    vi2 = v[i, 2]
+                    wi0 = w[i, 0]
+                    wi1 = w[i, 1]
+                    wi2 = w[i, 2]
+                    if with_mass:
+                        mass_i = mass[i]
                 # as contact_frame.pair_separation (exactly antisymmetric grouping)
-                gat[0, k] = (x[j, 0] - x[i, 0]) + s0
-                gat[1, k] = (x[j, 1] - x[i, 1]) + s1
-                gat[2, k] = (x[j, 2] - x[i, 2]) + s2
-                gat[3, k] = radius[i]
+                gat[0, k] = (x[j, 0] - xi0) + s0
+                gat[1, k] = (x[j, 1] - xi1) + s1
+                gat[2, k] = (x[j, 2] - xi2) + s2
+                gat[3, k] = rad_i
                 gat[4, k] = radius[j]
-                gat[5, k] = v[i, 0] - v[j, 0]
-                gat[6, k] = v[i, 1] - v[j, 1]
-                gat[7, k] = v[i, 2] - v[j, 2]
-                gat[8, k] = w[i, 0]
-                gat[9, k] = w[i, 1]
-                gat[10, k] = w[i, 2]
+                gat[5, k] = vi0 - v[j, 0]
+                gat[6, k] = vi1 - v[j, 1]
+                gat[7, k] = vi2 - v[j, 2]
+                gat[8, k] = wi0
+                gat[9, k] = wi1
+                gat[10, k] = wi2
                 gat[11, k] = w[j, 0]
                 gat[12, k] = w[j, 1]
                 gat[13, k] = w[j, 2]
                 for col in range(width):
                     hb[col, k] = hist[p, col]
-                mb[k] = mass[i]
-                mb[B + k] = mass[j]
+                if with_mass:        # only laws that read masses (damping) pay for them
+                    mb[k] = mass_i
+                    mb[B + k] = mass[j]
             for k in range(m):       # the law, no indirect access: vectorised
                 d0 = gat[0, k]
                 d1 = gat[1, k]
@@ -384,10 +407,11 @@ def _single():
     return one
 
 
-def law_interface(pair_function, constants, history_width):
+def law_interface(pair_function, constants, history_width, reads_mass=None):
     """``(compute, compute_all_pairs, single)`` of a law from its pieces: ``pair_function(params)
-    -> (forces, engaged)``, ``constants(params, dt) -> tuple of floats`` and
-    ``history_width(params) -> int`` (see the module docstring)."""
+    -> (forces, engaged)``, ``constants(params, dt) -> tuple of floats``,
+    ``history_width(params) -> int`` and ``reads_mass(params) -> bool`` (whether ``forces`` reads
+    the masses; None: always) (see the module docstring)."""
 
     def compute(params, elements, i, j, history, dt, shift=None, rate=None, acc=None,
                 with_energy=True, xacc=None, with_stress=True):
@@ -410,7 +434,8 @@ def law_interface(pair_function, constants, history_width):
         forces, engaged = pair_function(params)
         loop = pair_loop(forces, engaged, shift is not None,
                          rate is not None and bool(np.any(rate != 0.0)), bool(with_energy),
-                         xacc is not None, bool(with_stress), history_width=history.shape[1])
+                         xacc is not None, bool(with_stress), history_width=history.shape[1],
+                         with_mass=True if reads_mass is None else bool(reads_mass(params)))
         energy = loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
                       e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history, float(dt),
                       constants(params, dt), e.n_owned, np.zeros(10) if acc is None else acc,
