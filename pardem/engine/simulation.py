@@ -160,10 +160,10 @@ class Simulation:
         """
         t0 = _time.perf_counter()
         e = self.elements
-        # the rotation matrices serve the bonds only (bonding.make_bonds refreshes them itself)
-        with_rot = self.bonds is not None and self.bonds.n > 0
+        # no kernel of the step reads the rotation matrices (the bond loop makes them from q):
+        # ``Elements.rot`` is refreshed on demand (``refresh_rotations``)
         kick_drift(e.x, e.v, e.w, e.q, e.rot, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned,
-                   with_rot)
+                   False)
         if self.cell is not None:
             factor = self.cell.deform(e, self.dt, self._reference_positions())
             if factor is not None and self.domain is not None:

@@ -36,7 +36,9 @@ class Elements:
     """Spheres with 6 degrees of freedom; arrays of shape ``[n_total, ...]``.
 
     x, v, w : position [m], velocity [m/s], angular velocity (world frame) [rad/s]
-    q : orientation quaternion (w, x, y, z), body -> world; ``rot`` caches its matrix
+    q : orientation quaternion (w, x, y, z), body -> world; ``rot`` [n, 3, 3] its matrix, a
+        cache refreshed on demand (``refresh_rotations``: bond creation, diagnostics), not by the
+        step (the bond loop makes the matrices from ``q``)
     f, t : force [N] and torque about the centre [N m] accumulated in the current step
     radius [m], mass [kg], inertia [kg m^2] (2/5 m R^2), inv_mass, inv_inertia
     x0 : reference position of the strain fit [m]; gid : global id; flags : FLAG_* bits

@@ -307,8 +307,8 @@ class SlabComm:
         if self.comm.any(missing is not None):     # every rank raises together
             raise BondOutOfReach(f"{missing or 'a bond end is missing on another rank'}: a bond is "
                                  f"longer than the ghost range {self.ghost_range:.4g} m")
-        # the ghosts' orientations (and rotation matrices) serve the bond kernels only: refreshed
-        # every step while some rank has bonds, else sent with the ghosts at this rebuild only
+        # the ghosts' orientations serve the bond kernels only: refreshed every step while some
+        # rank has bonds, else sent with the ghosts at this rebuild only
         self.forward_orientation = self.comm.any(bonds.n > 0)
         width = GHOST_WIDTH if self.forward_orientation else GHOST_WIDTH_NO_BONDS
         self._send_buf = {nb: np.empty((len(self.send_rows[nb]), width)) for nb in self.neighbours}
@@ -319,8 +319,8 @@ class SlabComm:
     # -- every step ---------------------------------------------------------------------------
 
     def forward(self, e):
-        """Refresh the ghost rows' x, v, w from their owners, and q and the rotation matrices
-        while there are bonds (``forward_orientation``)."""
+        """Refresh the ghost rows' x, v, w from their owners, and q while there are bonds
+        (``forward_orientation``)."""
         reqs = []
         for nb in self.neighbours:
             if self.recv_count[nb]:
@@ -333,8 +333,6 @@ class SlabComm:
         for nb in self.neighbours:
             if self.recv_count[nb]:
                 _unpack_forward(self._recv_buf[nb], self.recv_start[nb], e.x, e.v, e.w, e.q)
-        if self.forward_orientation:
-            e.refresh_rotations(e.n_owned, e.n_total)
 
     def update(self, step, elements, bonds, contacts=None, pairs_freed=False, unstable=False,
                seconds_computing=0.0):
