@@ -16,7 +16,8 @@ from pardem.engine.bonding import BeamMaterial, make_bonds
 from pardem.domains.ordered import ordered_lattice
 from pardem.physics.quaternion import (quat_from_rotvec, quat_multiply_into, quat_to_matrix,
                                        quat_to_matrix_into, rotate_world)
-from pardem.physics.verlet import BLOCK, kick_drift
+from pardem.physics.neighbours import max_displacement2
+from pardem.physics.verlet import BLOCK, enforce_plane, kick, kick_drift
 from pardem.physics.timestep import critical_time_step, eigen_bound, max_tau
 from pardem.engine.simulation import Simulation
 from pardem.engine.state import Elements, Plates
@@ -109,12 +110,38 @@ def test_blocked_kick_drift_equals_one_row_at_a_time(with_rot):
          rng.random(n) + 0.5, rng.random(n) + 0.5]
     a[6][scale == 0.0] = 0.0        # no torque either: these rows do not turn
     b = [arr.copy() for arr in a]
-    kick_drift(*a, dt, n_owned, with_rot)
+    x_ref = x + rng.normal(size=x.shape) * 1e-6
+    assert kick_drift(*a, dt, n_owned, with_rot) == 0.0    # no reference: nothing measured
+    a = [arr.copy() for arr in b]
+    moved2 = kick_drift(*a, dt, n_owned, with_rot, x_ref)
     _kick_drift_one_row_at_a_time(*b, dt, n_owned, with_rot)
+    # the displacement measured during the drift is the rebuild check's own pass, bit for bit
+    assert moved2 == max_displacement2(b[0], x_ref, n_owned) > 0.0
     ang2 = np.sum((b[2][:n_owned] * dt) ** 2, axis=1)
     assert np.any(ang2 == 0.0) and np.any((ang2 > 0.0) & (ang2 < 1e-4)) and np.any(ang2 > 1e-4)
     for name, got, want in zip("x v w q rot f t".split(), a, b):
         np.testing.assert_array_equal(got, want, err_msg=name)
+
+
+def test_a_nan_speed_is_not_forgotten_by_later_rows():
+    """``kick``'s largest squared speed stays NaN once a row gave NaN, and ``enforce_plane``'s
+    largest offset too (a finite later row used to replace it, hiding a blow-up from the check)."""
+    n = 5
+    v, w, f, t = (np.zeros((n, 3)) for _ in range(4))
+    v[1, 0] = np.nan
+    v[3, 0] = 2.0
+    ones = np.ones(n)
+    assert np.isnan(kick(v, w, f, t, ones, ones, 1e-6, n))
+    x = np.zeros((n, 3))
+    x[1, 2] = np.nan
+    x[3, 2] = 1e-3
+    assert np.isnan(enforce_plane(x, v, w, f, t, 0.0, n, np.zeros(3)))
+    # and the drift's displacement from the build counts a NaN position as infinite
+    x[:] = 0.0
+    q = np.zeros((n, 4))
+    q[:, 0] = 1.0
+    moved2 = kick_drift(x, v, w, q, np.zeros((n, 3, 3)), f, t, ones, ones, 1e-6, n, False, np.zeros((n, 3)))
+    assert moved2 == np.inf
 
 
 def _matrix(q):

@@ -195,11 +195,14 @@ class Contacts:
         margin = 0.5 * self.skin - 0.5 * strain * max(self.cut, self.skin)
         return margin <= 0.0 or moved2 > margin * margin
 
-    def needs_rebuild(self, elements):
-        """Single-process check (the parallel layer reduces ``max_displacement2`` instead)."""
+    def needs_rebuild(self, elements, moved2=None):
+        """Single-process check (the parallel layer reduces ``max_displacement2`` instead);
+        ``moved2`` [m^2]: that displacement when the drift measured it."""
         if self.vl.builds == 0:
             return True
-        return self.budget_used(max_displacement2(elements.x, self.vl.x_build, elements.n_owned))
+        if moved2 is None:
+            moved2 = max_displacement2(elements.x, self.vl.x_build, elements.n_owned)
+        return self.budget_used(moved2)
 
     def restore(self, elements, gid_i, gid_j, shifts, history, x_build=None):
         """Take back a stored list (gid ends in list order) on the rows of ``elements``; with

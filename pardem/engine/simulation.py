@@ -140,10 +140,26 @@ class Simulation:
             return (self.domain.x_build,)
         return (self.contacts.reference_positions(),) if self.contacts is not None else ()
 
+    def _drift_reference(self):
+        """The positions of the last list build when the rebuild check may measure the
+        displacements during the drift (None when nothing checks, or when the cell's affine
+        step moves the rows after the drift)."""
+        if self.cell is not None and self.cell.deforming:
+            return None
+        if self.domain is not None:
+            ref = self.domain.x_build
+        elif self.contacts is not None and self.contacts.vl.builds > 0:
+            ref = self.contacts.reference_positions()
+        else:
+            return None
+        return ref if ref is not None and ref.shape[0] >= self.elements.n_owned else None
+
     def step(self, with_energy=True):
         """Advance one step of velocity Verlet (collective on several ranks). In this order:
 
-        1. first half kick and drift of the owned rows (``physics.verlet.kick_drift``);
+        1. first half kick and drift of the owned rows (``physics.verlet.kick_drift``), which also
+           measures the largest displacement since the last list build for step 4's check
+           (unless the cell deforms: step 2 moves the rows again, and the check measures then);
         2. the periodic cell's affine deformation (``PeriodicCell.deform``), the slab cuts follow it;
         3. the plates and walls move to their position at the end of the step;
         4. communication: the slab layer migrates elements and rebuilds ghosts and the contact list
@@ -162,8 +178,11 @@ class Simulation:
         e = self.elements
         # no kernel of the step reads the rotation matrices (the bond loop makes them from q):
         # ``Elements.rot`` is refreshed on demand (``refresh_rotations``)
-        kick_drift(e.x, e.v, e.w, e.q, e.rot, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned,
-                   False)
+        ref = self._drift_reference()
+        moved2 = kick_drift(e.x, e.v, e.w, e.q, e.rot, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt,
+                            e.n_owned, False, ref)
+        if ref is None:
+            moved2 = None        # measured after the cell's step, by the check itself
         if self.cell is not None:
             factor = self.cell.deform(e, self.dt, self._reference_positions())
             if factor is not None and self.domain is not None:
@@ -175,7 +194,7 @@ class Simulation:
         if self.domain is not None:
             # migration and ghosts, or the ghost refresh
             u = self.domain.update(self.step_count, e, self.bonds, self.contacts, self.pairs_freed,
-                                   self._unstable, self.seconds_computing)
+                                   self._unstable, self.seconds_computing, moved2)
             if u.unstable:
                 self.check_stability(force=True)
             if u.rebuilt:
@@ -183,7 +202,7 @@ class Simulation:
                 if self.contacts is not None:
                     self.pairs_freed = False    # the freed pairs are in the new contact list
                 e = self.elements
-        elif self.contacts is not None and (self.pairs_freed or self.contacts.needs_rebuild(e)):
+        elif self.contacts is not None and (self.pairs_freed or self.contacts.needs_rebuild(e, moved2)):
             self.rebuild_contacts()
         t2 = _time.perf_counter()
         self.compute_forces(with_energy)

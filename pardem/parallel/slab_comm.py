@@ -335,13 +335,15 @@ class SlabComm:
                 _unpack_forward(self._recv_buf[nb], self.recv_start[nb], e.x, e.v, e.w, e.q)
 
     def update(self, step, elements, bonds, contacts=None, pairs_freed=False, unstable=False,
-               seconds_computing=0.0):
+               seconds_computing=0.0, moved2=None):
         """After the drift of ``step``: rebuild (and rebalance) or refresh the ghosts. Collective.
 
         ``contacts``: the rank's ``Contacts`` (rebuilt here with the histories that travelled);
         ``pairs_freed``: a bond broke on this rank since the last rebuild; ``unstable``: this rank
         blew up (every rank then stops together instead of rebuilding around NaN positions);
-        ``seconds_computing``: this rank's kernel seconds so far (time-based balance).
+        ``seconds_computing``: this rank's kernel seconds so far (time-based balance);
+        ``moved2`` [m^2]: the owned rows' largest squared displacement from ``x_build`` when the
+        drift measured it (``verlet.kick_drift``), else measured here.
         Returns ``SlabUpdate``: the (possibly new) elements and bonds, and what happened.
         """
         t0 = time.perf_counter()
@@ -349,7 +351,10 @@ class SlabComm:
         reproducible = self.reproducible if contacts is None else contacts.reproducible
         rebalance = (not reproducible and self.balance_every > 0 and step % self.balance_every == 0
                      and self._unbalanced(e.n_owned, seconds_computing))
-        moved = np.inf if unstable else max_displacement2(e.x, self.x_build, e.n_owned)
+        if unstable:
+            moved = np.inf
+        else:
+            moved = max_displacement2(e.x, self.x_build, e.n_owned) if moved2 is None else moved2
         # a broken bond (on any rank) frees a pair for the contact list: rebuild it now
         moved, freed = self.comm.max_array([moved, contacts is not None and pairs_freed])
         if not np.isfinite(moved):
