@@ -95,7 +95,7 @@ def test_ghosts_equal_owners_after_every_step(tmp_path, n):
     assert ran_to_end(p), p.stderr
     r = json.loads(out.read_text())
     assert r["steps"] == 400 * n and r["rebuilds"] > 3 and r["ghosts_checked"] > 0
-    assert r["mismatches"] == 0
+    assert r["mismatches"] == 0 and r["missing_ghosts"] == 0
 
 
 @pytest.mark.parametrize("n, split, by", [(2, "[0.2]", "count"), (3, "[0.15, 0.3]", "count"),

@@ -118,6 +118,14 @@ def _concat(parts):
 
 
 
+def _gaps(s, lo, hi):
+    """(lower, upper) [m]: how far the owned rows' coordinates ``s`` stay inside the slab
+    ``[lo, hi]`` (0 without owned rows: a neighbour then sends what reaches the bound)."""
+    if len(s) == 0:
+        return 0.0, 0.0
+    return max(float(s.min()) - lo, 0.0), max(hi - float(s.max()), 0.0)
+
+
 class BondOutOfReach(DecompositionError):
     """A bond's ends are farther apart than the ghost range (raised on every rank together)."""
 
@@ -281,11 +289,16 @@ class SlabComm:
         lo, hi = self._bounds(self.comm.rank)
         s = e.x[:n, self.slabs.axis]
         reach = self.ghost_range + extra
+        # a row is sent only if it lies within reach of the neighbour's nearest owned row, not
+        # merely of the cut: a balanced cut lies on a lattice plane, and ``s < lo + reach`` then
+        # sent a second plane that no owned row can reach (a third of the ghosts, and a rank
+        # with more ghosts than the other, at n = 60 on 2 ranks)
+        gaps = self.comm.allgather(_gaps(s, lo, hi))
         rows = {}
         if self.left is not None:
-            rows[self.left] = np.nonzero(s < lo + reach)[0]
+            rows[self.left] = np.nonzero(s < lo + (reach - gaps[self.left][1]))[0]
         if self.right is not None:
-            right = np.nonzero(s >= hi - reach)[0]
+            right = np.nonzero(s >= hi - (reach - gaps[self.right][0]))[0]
             rows[self.right] = np.union1d(rows[self.right], right) if self.right == self.left else right
         got = self._swap({nb: e.pack(r) for nb, r in rows.items()}, _TAG_BORDERS)
         parts = [e.pack(slice(0, n))]
