@@ -4,8 +4,9 @@ Verbs (LAMMPS style; only ``Simulation.step`` and the setup call them):
 
 * ``exchange``: owned elements whose key left the slab move to their owner with the bonds they take
   part in (bond state travels whole: reference vectors, stiffness, later plastic strain);
-* ``borders``: each rank sends the neighbours its elements within ``ghost_range`` of the shared
-  boundary; they become ghost rows after the owned rows, and bonds are relinked by global id;
+* ``borders``: each rank sends the neighbours its elements within ``ghost_range`` (along the slab
+  axis) of the neighbour's nearest owned element; they become ghost rows after the owned rows, and
+  bonds are relinked by global id;
 * ``forward``: every step, positions, velocities, angular velocities and orientations of the ghost
   rows are refreshed with non-blocking point-to-point messages to the two neighbours only.
 
