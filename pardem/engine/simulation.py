@@ -144,14 +144,9 @@ class Simulation:
         """The positions of the last list build when the rebuild check may measure the
         displacements during the drift (None when nothing checks, or when the cell's affine
         step moves the rows after the drift)."""
-        if self.cell is not None and self.cell.deforming:
-            return None
-        if self.domain is not None:
-            ref = self.domain.x_build
-        elif self.contacts is not None and self.contacts.vl.builds > 0:
-            ref = self.contacts.reference_positions()
-        else:
-            return None
+        refs = () if self.cell is not None and self.cell.deforming else self._reference_positions()
+        ref = refs[0] if refs else None
+        # before the first build the list's reference has no rows
         return ref if ref is not None and ref.shape[0] >= self.elements.n_owned else None
 
     def step(self, with_energy=True):
