@@ -132,7 +132,7 @@ def damping_share(sim, calls=200):
         loop = beam.bond_loop(damped, b.breakable, densify)
         state, plastic = b.state.copy(), b.plastic.copy()
         t0 = time.process_time()
-        loop(b.i, b.j, e.x, e.v, e.w, e.rot, f, t, b.L0, b.ka, b.kb, b.kt, b.tau_a, b.tau_t, b.rot_damping,
+        loop(b.i, b.j, e.x, e.v, e.w, e.q, f, t, b.L0, b.ka, b.kb, b.kt, b.tau_a, b.tau_t, b.rot_damping,
              b.u1, b.p1, b.u2, b.p2, state, b.f_tensile, b.f_shear, b.f_yield, plastic,
              b.densify_p0 if densify else 1.0, e.n_owned)
         dt = time.process_time() - t0
