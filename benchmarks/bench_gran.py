@@ -9,7 +9,10 @@ n * 1.998 R; dt = 1e-8 s; 100 warm-up steps then 2000 timed steps; n = 20, 40, 6
     mpiexec -n 2 python benchmarks/bench_gran.py
 
 ``--reproducible off`` sets ``pardem.engine.contacts.REPRODUCIBLE = False`` (lists in cell order,
-float sums; issue 16 item 8 asks what the bitwise rank independence costs).
+float sums; issue 16 item 8 asks what the bitwise rank independence costs). ``--orientation off``
+builds the case with ``orientation=False``: the grains' orientations are not integrated (no contact
+force reads them, and LAMMPS' ``fix nve/sphere`` does not integrate them either); the trajectory
+is the same to the bit (``energy_end``).
 
 The case is the engine's (``pardem.engine.granular.build``: slabs along x, which is periodic, so the
 first and last ranks are neighbours; Verlet list with skin 0.1 R; ``Simulation.run``). Prints and
@@ -41,6 +44,9 @@ def main():
     p.add_argument("--out", default=None)
     p.add_argument("--reproducible", choices=["on", "off"], default="on",
                    help="contacts.REPRODUCIBLE (default on, the library's default)")
+    p.add_argument("--orientation", choices=["on", "off"], default="on",
+                   help="integrate the grains' orientations (default on, the library's default; "
+                        "LAMMPS' fix nve/sphere does not)")
     args = p.parse_args()
     contacts_mod.REPRODUCIBLE = args.reproducible == "on"
     comm = Communicator()
@@ -49,7 +55,7 @@ def main():
     for n in args.sizes:
         pos, side = granular.simple_cubic(n, R, spacing=1.998, jitter=0.0002, seed=12345)
         case = granular.build(comm, pos, R, RHO, "hertz_mindlin", PARAMS, np.zeros(3), np.full(3, side),
-                              DT, 0.1 * R)
+                              DT, 0.1 * R, orientation=args.orientation == "on")
         sim = case.sim
         sim.run(args.warmup)
         b0 = sim.contacts.builds
@@ -72,7 +78,8 @@ def main():
                "element_steps_per_second": N * args.steps / wall,
                "communication_share": float(comm.max(comm_s)) / wall,
                "rebuilds_during_timed_steps": int(rebuilt),
-               "reproducible": sim.contacts.reproducible, "bytes_per_element": float(mem) / N,
+               "reproducible": sim.contacts.reproducible, "orientation": sim.orientation,
+               "bytes_per_element": float(mem) / N,
                "energy_end": float(sim.kinetic_energy() + comm.sum(sim.contact_energy))}
         rows.append(row)
         if comm.is_root:

@@ -26,6 +26,9 @@ The cases are those of ``../shared/peers/CASES.md``, written here from that text
   gran/hertz/history`` with kn = 4/3 E*, kt = 8 G* (the same Hertz and Mindlin laws), ``fix
   nve/sphere``, ``neighbor 0.1R bin``, ``neigh_modify delay 0 every 1 check yes`` (the same skin
   policy), double precision, newton on; seconds = LAMMPS' own ``Loop time`` of the timed run.
+  ``fix nve/sphere`` integrates positions, velocities and spins, not the orientations, and no
+  force reads them; pardem's case is built alike (``orientation=False``, the same trajectory to
+  the bit) unless ``--gran-orientation on``.
 * BOND: n^3 touching spheres, R = 0.25 mm, 1000 kg/m^3, one 6-DOF elastic bond per face pair
   (E = 100 MPa, bond radius R, Poisson 0.3, no damping), frictionless plates normal to x, the one
   at x_max moving at -0.05 m/s; dt = 1e-7 s; 100 warm-up then 2000 timed steps. pardem:
@@ -213,6 +216,8 @@ def run_pardem(args, case, n, ranks, work):
     script = "bench_gran.py" if case == "gran" else "bench_bond.py"
     cmd = pardem_cmd(args, ranks, script) + ["--sizes", str(n), "--warmup", str(args.warmup),
                                              "--steps", str(args.steps), "--out", out]
+    if case == "gran":
+        cmd += ["--orientation", args.gran_orientation]
     _, _, others = run(cmd, HERE, {"OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"})
     with open(out) as fh:
         row = json.load(fh)["results"][0]
@@ -313,7 +318,10 @@ def table(report):
              f"{', ' + report['cpu'] if report.get('cpu') else ''}), "
              f"interleaved pardem / peer, best of {report['repeats']}; element-steps per second "
              f"({report['warmup']} warm-up + {steps} timed steps). Load: largest CPU share other "
-             "processes took during a run, in cores (> 0.15: the figure is not valid).", "",
+             "processes took during a run, in cores (> 0.15: the figure is not valid)."
+             + {"on": " GRAN: pardem integrates the grains' orientations (LAMMPS' nve/sphere does not).",
+                "off": " GRAN: neither code integrates the grains' orientations (pardem's orientation=False, "
+                       "LAMMPS' nve/sphere)."}.get(report.get("gran_orientation"), ""), "",
              "| case | n | ranks | peer code | peer | pardem | ratio | load | ratio of CPU time |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     best = {}
@@ -358,6 +366,9 @@ def main():
     p.add_argument("--lmp", default=shutil.which("lmp"))
     p.add_argument("--esys", default=shutil.which("esysparticle"))
     p.add_argument("--keep", action="store_true", help="keep the work folder (inputs, logs)")
+    p.add_argument("--gran-orientation", choices=["on", "off"], default="off",
+                   help="GRAN: let pardem integrate the grains' orientations (default off, as LAMMPS' "
+                        "fix nve/sphere, which integrates the spin only)")
     args = p.parse_args()
     for name, v in (("--sizes", args.sizes), ("--ranks", args.ranks), ("--repeats", [args.repeats]),
                     ("--steps", [args.steps])):
@@ -371,7 +382,8 @@ def main():
     report = {"benchmark": "compare_peers", "date": datetime.datetime.now(datetime.timezone.utc)
               .strftime("%Y-%m-%d %H:%M UTC"), "machine": platform.machine(), "cpus": os.cpu_count(),
               "cpu": cpu_model(), "load_before": os.getloadavg(), "warmup": args.warmup, "steps": args.steps,
-              "repeats": args.repeats, "work": work if args.keep else None, "rows": []}
+              "repeats": args.repeats, "gran_orientation": args.gran_orientation,
+              "work": work if args.keep else None, "rows": []}
     try:
         for case in args.cases:
             peer_name, exe, peer_run = PEERS[case]

@@ -342,3 +342,54 @@ def test_centres_outside_the_cell_are_wrapped_in():
     b = granular.build(Communicator(), shifted, R, 2500.0, "hertz_mindlin", {"young": 72e9, "poisson": 0.2},
                        np.zeros(3), np.full(3, L), 1e-8, 0.1 * R)
     np.testing.assert_allclose(b.sim.elements.x, a.sim.elements.x, rtol=0, atol=1e-15)
+
+
+def _spinning_gas(orientation):
+    """A frictional packing, squeezed (overlaps 2 %, jittered) with random spins: contacts turn
+    the grains, so their orientations change a lot within a few hundred steps."""
+    pos, radii, L = dense_packing()
+    w0 = np.random.default_rng(9).normal(0.0, 2e3, (len(pos), 3))     # rad/s
+    return granular.build(Communicator(), pos, radii, 2500.0, "hertz_mindlin",
+                          {"young": 72e9, "poisson": 0.2, "friction": 0.5}, np.zeros(3),
+                          np.full(3, L), 2e-9, 0.05 * R, angular_velocities=w0,
+                          orientation=orientation)
+
+
+def test_without_orientation_the_motion_is_the_same_to_the_bit(tmp_path):
+    """No contact law reads q: a run that does not integrate it moves the grains exactly as one
+    that does; q then keeps its initial value. Its restart keeps the choice."""
+    on, off = _spinning_gas(True), _spinning_gas(False)
+    q0 = off.sim.elements.q.copy()
+    for case in (on, off):
+        case.sim.run(300)
+    a, b = on.sim, off.sim
+    assert (a.orientation, b.orientation) == (True, False)
+    np.testing.assert_array_equal(a.elements.gid, b.elements.gid)
+    for key in ("x", "v", "w", "f", "t"):
+        np.testing.assert_array_equal(getattr(a.elements, key), getattr(b.elements, key), err_msg=key)
+    np.testing.assert_array_equal(a.contacts.history, b.contacts.history)
+    np.testing.assert_array_equal(b.elements.q, q0)
+    # not vacuous: integrated, the orientations moved by far more than round-off (w dt ~ 4e-6 rad
+    # per step over 300 steps)
+    assert np.abs(a.elements.q - q0).max() > 1e-4
+    path = tmp_path / "off.h5"
+    granular.write(off, str(path))
+    back = granular.restore(Communicator(), str(path))
+    assert back.sim.orientation is False
+    back.sim.run(50)
+    off.sim.run(50)
+    for key in ("x", "v", "w", "q"):
+        np.testing.assert_array_equal(getattr(back.sim.elements, key), getattr(off.sim.elements, key))
+
+
+def test_bonded_elements_need_their_orientation():
+    from pardem.engine.bonding import BeamMaterial, make_bonds
+    from pardem.engine.simulation import Simulation
+    from pardem.engine.state import Elements
+    e = Elements.from_spheres(np.array([[0.0, 0.0, 0.0], [2 * R, 0.0, 0.0]]), R, 2500.0)
+    bonds = make_bonds(e, [[0, 1]], BeamMaterial(young=1e9, radius_ratio=0.5, poisson=0.3, damping=0.0),
+                       np.eye(3))
+    bonds.relink(e.gid)
+    with pytest.raises(ValueError, match="orientation"):
+        Simulation(Communicator(), e, bonds, None, 1e-9, orientation=False)
+    Simulation(Communicator(), e, bonds, None, 1e-9)     # the default integrates them

@@ -98,7 +98,7 @@ def plane_cell(box_lo, box_length, periodic, radii, thickness=None):
 def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, skin,
           periodic=(True, True, True), rate=(0.0, 0.0, 0.0), servo=None, viscous_damping=0.0,
           velocities=None, angular_velocities=None, slab_axis=0, balance_every=0, dimension=3,
-          thickness=None):
+          thickness=None, orientation=True):
     """A granular case from global centres [n, 3] and radii [n] (every rank passes the same).
 
     density [kg/m^3]; law, params: the contact law and its parameters (dict); box_lo [3],
@@ -111,6 +111,9 @@ def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, 
     [m] (default the mean diameter) along z (``plane_cell``); ``rate[2]`` must be 0; the
     out-of-plane components of ``velocities`` (z) and ``angular_velocities`` (x, y) are dropped;
     ``slab_axis`` 0 or 1.
+
+    ``orientation`` False: the grains' orientations are not integrated (``Simulation``; no contact
+    law reads them, LAMMPS' ``fix nve/sphere`` does not either); recorded for the restart.
     """
     dimension = check_dimension(dimension)
     if dimension == 2:
@@ -143,7 +146,8 @@ def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, 
     constants = {"density": float(density), "law": law, "params": dict(params), "dt": float(dt),
                  "skin": float(skin), "reach": reach, "slab_axis": int(slab_axis),
                  "viscous_damping": float(viscous_damping), "n_elements": n,
-                 "balance_every": int(balance_every), "dt_critical": dt_c}
+                 "balance_every": int(balance_every), "dt_critical": dt_c,
+                 "orientation": bool(orientation)}
     if dimension == 2:
         constants.update(dimension=2, thickness=cell.thickness)
     contacts = Contacts(LAWS[law], prm, skin, cell, reach=reach)
@@ -168,7 +172,7 @@ def build(comm, positions, radii, density, law, params, box_lo, box_length, dt, 
         cell.wrap(e)
         contacts.rebuild(e, bonds)
     sim = Simulation(comm, e, bonds, None, dt, domain=domain, contacts=contacts, cell=cell,
-                     viscous_damping=viscous_damping)
+                     viscous_damping=viscous_damping, orientation=orientation)
     if dimension == 2:
         sim.fixes.append(PlaneConstraint(0.0))
     return GranularCase(sim=sim, constants=constants)
@@ -212,7 +216,8 @@ def restore(comm, path, slab_axis=None, meta=None):
                                                            balance_every=c["balance_every"], cell=cell))
     walls = snapshot.walls_of(c.pop("walls", None))
     sim = Simulation(comm, parts.elements, parts.bonds, walls, c["dt"], domain=parts.domain,
-                     contacts=contacts, cell=cell, viscous_damping=c["viscous_damping"])
+                     contacts=contacts, cell=cell, viscous_damping=c["viscous_damping"],
+                     orientation=bool(c.get("orientation", True)))   # older files: integrated
     if int(c.get("dimension", 3)) == 2:
         sim.fixes.append(PlaneConstraint(0.0))
     snapshot.resume(sim, meta, parts.same)

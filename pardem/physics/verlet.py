@@ -16,11 +16,13 @@ BLOCK = 64   # rows per block of kick_drift (the scratch blocks stay in L1)
 
 
 @njit(cache=True, error_model="numpy")
-def kick_drift(x, v, w, q, rot, f, t, inv_mass, inv_inertia, dt, n_owned, with_rot=True, x_ref=None):
+def kick_drift(x, v, w, q, rot, f, t, inv_mass, inv_inertia, dt, n_owned, with_rot=True, x_ref=None,
+               with_q=True):
     """Half kick with the forces of the previous step, drift by ``dt``, then zero ``f`` and ``t``.
     ``with_rot``: also refresh the cached rotation matrices ``rot`` from ``q`` (only the bond
     kernels read them; a run without bonds skips it and refreshes on demand,
-    ``Elements.refresh_rotations``).
+    ``Elements.refresh_rotations``). ``with_q`` False: the orientations ``q`` are not advanced
+    (nor ``rot``): a run whose kernels and outputs never read them (``Simulation.orientation``).
 
     ``x_ref`` [>= n_owned, 3] [m]: the positions of the last neighbour-list build; returns then the
     owned rows' largest squared displacement from them after the drift (``neighbours.
@@ -54,6 +56,8 @@ def kick_drift(x, v, w, q, rot, f, t, inv_mass, inv_inertia, dt, n_owned, with_r
                 t[k, d] = 0.0
             if x_ref is not None:
                 moved2 = larger_displacement2(moved2, x, x_ref, k)
+            if not with_q:
+                continue
             g[0, kk] = q[k, 0]
             g[1, kk] = q[k, 1]
             g[2, kk] = q[k, 2]
@@ -61,6 +65,8 @@ def kick_drift(x, v, w, q, rot, f, t, inv_mass, inv_inertia, dt, n_owned, with_r
             g[4, kk] = w[k, 0] * dt
             g[5, kk] = w[k, 1] * dt
             g[6, kk] = w[k, 2] * dt
+        if not with_q:
+            continue
         for kk in range(m):      # the series branch of rotate_world, no call: vectorised
             ax = g[4, kk]
             ay = g[5, kk]
