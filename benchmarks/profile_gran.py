@@ -61,12 +61,14 @@ def main():
     p.add_argument("--clock", choices=["wall", "cpu"], default="wall",
                    help="cpu: this process's CPU time (steadier on a loaded machine; MPI waits "
                         "spin, so they count as busy)")
+    p.add_argument("--orientation", choices=["on", "off"], default="on",
+                   help="integrate the grains' orientations (as bench_gran.py --orientation)")
     args = p.parse_args()
     CLOCK[0] = time.perf_counter if args.clock == "wall" else time.process_time
     comm = Communicator()
     pos, side = granular.simple_cubic(args.n, R, spacing=1.998, jitter=0.0002, seed=12345)
     case = granular.build(comm, pos, R, RHO, "hertz_mindlin", PARAMS, np.zeros(3), np.full(3, side),
-                          DT, 0.1 * R)
+                          DT, 0.1 * R, orientation=args.orientation == "on")
     sim = case.sim
     sim.run(100)
     instrument()

@@ -433,7 +433,8 @@ def law_interface(pair_function, constants, history_width, reads_mass=None):
         check_pairs(i, j, history, shift, history_width(params))
         forces, engaged = pair_function(params)
         loop = pair_loop(forces, engaged, shift is not None,
-                         rate is not None and bool(np.any(rate != 0.0)), bool(with_energy),
+                         rate is not None and bool(rate[0] != 0.0 or rate[1] != 0.0 or rate[2] != 0.0),
+                         bool(with_energy),
                          xacc is not None, bool(with_stress), history_width=history.shape[1],
                          with_mass=True if reads_mass is None else bool(reads_mass(params)))
         energy = loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
