@@ -35,6 +35,8 @@ the caller.
 import numpy as np
 from numba import njit
 
+from pardem.physics.contact_frame import any_rate
+
 
 @njit(cache=True, error_model="numpy")
 def _affine_map(x, n, lo, factor):
@@ -124,9 +126,7 @@ class PeriodicCell:
 
     @property
     def deforming(self):
-        # read three times a step: three scalar tests, not np.any (4 us a call)
-        r = self.rate
-        return self.servo is not None or bool(r[0] != 0.0 or r[1] != 0.0 or r[2] != 0.0)
+        return self.servo is not None or any_rate(self.rate)
 
     def deform(self, elements, dt, references=()):
         """Map the owned rows and the ``references`` position arrays affinely over one step;

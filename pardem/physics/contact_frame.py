@@ -90,6 +90,12 @@ def relative_motion(i, j, v, w, n0, n1, n2, li, lj):
     return un, u0 - un * n0, u1 - un * n1, u2 - un * n2, spin
 
 
+def any_rate(rate):
+    """Whether a diagonal strain rate [3] [1/s] has a non-zero (or NaN) component: three scalar
+    tests, not ``np.any`` (4 us a call, and it is asked several times a step)."""
+    return bool(rate[0] != 0.0 or rate[1] != 0.0 or rate[2] != 0.0)
+
+
 @njit(cache=True, inline="always", error_model="numpy")
 def affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1, n2, g0, g1, g2):
     """Add the affine part of the relative motion in a cell deforming at diagonal rate ``g`` [1/s].

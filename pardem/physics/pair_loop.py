@@ -42,7 +42,7 @@ import numpy as np
 from numba import njit
 
 from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, add_love_weber, affine_motion,
-                                          check_pairs, clear_history, contact_geometry,
+                                          any_rate, check_pairs, clear_history, contact_geometry,
                                           pair_separation, relative_motion, scatter_pair,
                                           write_pair)
 from pardem.physics.exact_accumulate import NLIMB
@@ -433,8 +433,7 @@ def law_interface(pair_function, constants, history_width, reads_mass=None):
         check_pairs(i, j, history, shift, history_width(params))
         forces, engaged = pair_function(params)
         loop = pair_loop(forces, engaged, shift is not None,
-                         rate is not None and bool(rate[0] != 0.0 or rate[1] != 0.0 or rate[2] != 0.0),
-                         bool(with_energy),
+                         rate is not None and any_rate(rate), bool(with_energy),
                          xacc is not None, bool(with_stress), history_width=history.shape[1],
                          with_mass=True if reads_mass is None else bool(reads_mass(params)))
         energy = loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
