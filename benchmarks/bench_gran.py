@@ -14,7 +14,7 @@ builds the case with ``orientation=False``: the grains' orientations are not int
 force reads them, and LAMMPS' ``fix nve/sphere`` does not integrate them either); the trajectory
 is the same to the bit (``energy_end``).
 
-The case is the engine's (``pardem.engine.granular.build``: slabs along x, which is periodic, so the
+The case is the engine's (``pardem.engine.system.build``: slabs along x, which is periodic, so the
 first and last ranks are neighbours; Verlet list with skin 0.1 R; ``Simulation.run``). Prints and
 writes JSON (``results/bench_gran_<P>ranks.json``) with element-steps per second, wall time per step,
 the CPU seconds of the timed steps (largest over the ranks; on a loaded machine the 1-rank figure
@@ -29,7 +29,8 @@ import time
 import numpy as np
 
 from pardem.engine import contacts as contacts_mod
-from pardem.engine import granular
+from pardem.engine.granular import simple_cubic
+from pardem.engine.system import Cell, ContactModel, Decomposition, Integration, Particles, System, build
 from pardem.parallel.communicator import Communicator
 
 R, RHO, DT = 0.1e-3, 2500.0, 1e-8
@@ -53,10 +54,12 @@ def main():
     out = args.out or os.path.join(os.path.dirname(__file__), "results", f"bench_gran_{comm.size}ranks.json")
     rows = []
     for n in args.sizes:
-        pos, side = granular.simple_cubic(n, R, spacing=1.998, jitter=0.0002, seed=12345)
-        case = granular.build(comm, pos, R, RHO, "hertz_mindlin", PARAMS, np.zeros(3), np.full(3, side),
-                              DT, 0.1 * R, orientation=args.orientation == "on")
-        sim = case.sim
+        pos, side = simple_cubic(n, R, spacing=1.998, jitter=0.0002, seed=12345)
+        system = System(Particles(pos, R, RHO), contacts=ContactModel("hertz_mindlin", PARAMS),
+                        cell=Cell(np.zeros(3), np.full(3, side)),
+                        integration=Integration(dt=DT, orientation=args.orientation == "on"),
+                        decomposition=Decomposition(slab_axis=0, skin=0.1 * R))
+        sim = build(comm, system)
         sim.run(args.warmup)
         b0 = sim.contacts.builds
         c0 = sim.domain.seconds_communicating if sim.domain is not None else 0.0

@@ -18,7 +18,9 @@ from collections import defaultdict
 import numpy as np
 
 from pardem.engine import contacts as contacts_mod
-from pardem.engine import granular, simulation
+from pardem.engine import simulation
+from pardem.engine.granular import simple_cubic
+from pardem.engine.system import Cell, ContactModel, Decomposition, Integration, Particles, System, build
 from pardem.parallel import slab_comm
 from pardem.parallel.communicator import Communicator
 
@@ -66,10 +68,12 @@ def main():
     args = p.parse_args()
     CLOCK[0] = time.perf_counter if args.clock == "wall" else time.process_time
     comm = Communicator()
-    pos, side = granular.simple_cubic(args.n, R, spacing=1.998, jitter=0.0002, seed=12345)
-    case = granular.build(comm, pos, R, RHO, "hertz_mindlin", PARAMS, np.zeros(3), np.full(3, side),
-                          DT, 0.1 * R, orientation=args.orientation == "on")
-    sim = case.sim
+    pos, side = simple_cubic(args.n, R, spacing=1.998, jitter=0.0002, seed=12345)
+    system = System(Particles(pos, R, RHO), contacts=ContactModel("hertz_mindlin", PARAMS),
+                    cell=Cell(np.zeros(3), np.full(3, side)),
+                    integration=Integration(dt=DT, orientation=args.orientation == "on"),
+                    decomposition=Decomposition(slab_axis=0, skin=0.1 * R))
+    sim = build(comm, system)
     sim.run(100)
     instrument()
     best, best_wall = None, np.inf

@@ -52,7 +52,9 @@ def main(argv=None):
     EI = E * np.pi * (ratio * R) ** 4 / 4.0
     mass = rho * 4.0 / 3.0 * np.pi * R**3
     omega1 = 1.875**2 * np.sqrt(EI / (mass / (2.0 * R) * L**4))   # first bending mode [rad/s]
-    sim = pardem.bonded_system(comm, x, R, rho, pairs, material, viscous_damping=2.0 * omega1)
+    system = pardem.System(pardem.Particles(x, R, rho), bonds=pardem.BondModel(material, pairs),
+                           integration=pardem.Integration(viscous_damping=2.0 * omega1))
+    sim = pardem.build(comm, system)
     clamp = pardem.Clamp([0])                                      # all 6 DOFs of element 0
     pardem.add_fixes(sim, clamp, pardem.ExternalForce([n - 1], force=(0.0, 0.0, -F)))
 

@@ -54,10 +54,10 @@ def main(argv=None):
     transit = length / (2 * R * np.sqrt(k_wall / mass))        # axial wave crossing time [s]
     duration = (25 if args.quick else 40) * transit
     speed = strain_end * length / duration
-    sim = pardem.bonded_system(
-        comm, x, R, rho, pairs, material, frame=frame,
-        walls=dict(normals=[[0, 0, 1], [0, 0, -1]], points=[[0, 0, z_lo], [0, 0, z_hi]],
-                   velocities=[[0, 0, 0], [0, 0, -speed]], stiffness=k_wall))
+    walls = pardem.WallModel(normals=[[0, 0, 1], [0, 0, -1]], points=[[0, 0, z_lo], [0, 0, z_hi]],
+                             velocities=[[0, 0, 0], [0, 0, -speed]], law=pardem.wall_law("linear", stiffness=k_wall))
+    sim = pardem.build(comm, pardem.System(pardem.Particles(x, R, rho), bonds=pardem.BondModel(material, pairs, frame),
+                                           walls=walls))
     walls = sim.plates
     bottom = np.nonzero(np.isclose(x[:, 2], x[:, 2].min()))[0]
     top = np.nonzero(np.isclose(x[:, 2], x[:, 2].max()))[0]

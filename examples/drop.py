@@ -44,14 +44,13 @@ def main(argv=None):
     omega_dt = 0.05 if args.quick else 0.02           # steps per contact ~ pi / omega_dt
 
     comm = pardem.Communicator()
-    material = pardem.BeamMaterial(young=1e9, radius_ratio=0.5, poisson=0.3, damping=0.0)   # no bonds
     mass = rho * 4.0 / 3.0 * np.pi * R**3
     omega = np.sqrt(k / mass)
     # the critical step of a single sphere on a linear wall is 2 / omega: dt = omega_dt / omega
-    sim = pardem.bonded_system(comm, [[0.0, 0.0, R + h]], R, rho, np.zeros((0, 2), int), material,
-                               dt_fraction=0.5 * omega_dt,
-                               walls=dict(normals=[[0, 0, 1]], points=[[0, 0, 0]], stiffness=k,
-                                          restitution=e_req))
+    floor = pardem.WallModel(normals=[[0, 0, 1]], points=[[0, 0, 0]],
+                             law=pardem.wall_law("linear", stiffness=k, restitution=e_req))
+    sim = pardem.build(comm, pardem.System(pardem.Particles([[0.0, 0.0, R + h]], R, rho), walls=floor,
+                                           integration=pardem.Integration(dt_fraction=0.5 * omega_dt)))
     pardem.add_fixes(sim, pardem.Gravity((0.0, 0.0, -g)))
 
     # free fall to just above the wall in one go (exact parabola for Verlet), then step by step

@@ -1,11 +1,13 @@
 """pardem: parallel discrete element method for bonded and granular media.
 
-The Python API: build a ``Simulation`` (``bonded_system``, ``granular_system``), add walls
-(``add_walls``), loads and constraints (``add_fixes(sim, ...)``, which keeps the loads ``Gravity``,
-``ExternalForce`` before the constraints ``Clamp``, ``PrescribedVelocity`` in ``sim.fixes``), a
-thermo ``Log``, then ``sim.run(n_steps)``. The same script runs on one
-process (``python script.py``) and on several (``mpiexec -n 2 python script.py``): every rank
-passes the same global arrays, elements are selected by global id (index in ``positions``).
+The Python API, at one level (HOOMD-blue and Yade style): describe the system (``System`` of
+``Particles``, a ``ContactModel``, a ``BondModel``, ``WallModel``, ``Cell``, ``Integration``,
+``Decomposition``), ``build`` the ``Simulation``, add loads and constraints (``add_fixes(sim, ...)``:
+``Gravity``, ``ExternalForce``, ``Clamp``, ``PrescribedVelocity``), run it with operations (``Log``,
+``ParaViewWriter``, ``CheckpointWriter``), and ``save`` / ``load`` checkpoints. The same script
+runs on one process (``python script.py``) and on several (``mpiexec -n 2 python script.py``):
+every rank passes the same global arrays; particle ``k`` of the arrays has global id ``k``.
+
 A cantilever of 11 spheres, clamped at one end and loaded at the other::
 
     import numpy as np
@@ -16,15 +18,19 @@ A cantilever of 11 spheres, clamped at one end and loaded at the other::
     x = np.zeros((n, 3)); x[:, 0] = 2 * R * np.arange(n)
     pairs = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
     material = pardem.BeamMaterial(young=1e9, radius_ratio=0.5, poisson=0.3, damping=0.0)
-    sim = pardem.bonded_system(comm, x, R, 1000.0, pairs, material, viscous_damping=270.0)
+    system = pardem.System(pardem.Particles(x, R, 1000.0), bonds=pardem.BondModel(material, pairs),
+                           integration=pardem.Integration(viscous_damping=270.0))
+    sim = pardem.build(comm, system)
     pardem.add_fixes(sim, pardem.Clamp([0]), pardem.ExternalForce([n - 1], force=(0, 0, -1e-3)))
     sim.run(30000, operations=[pardem.Log(every=10000)])
 
-Checkpoints of such a system: ``pardem.save(sim, "state.h5")`` (collective) and
-``sim = pardem.load(comm, "state.h5")`` on any number of ranks (bit for bit on the rank count that
-wrote it); fixes and operations are the script's objects: add them again after ``load``.
+Checkpoints: ``pardem.save(sim, "state.h5")`` (collective) and ``sim = pardem.load(comm,
+"state.h5")`` on any number of ranks (bit for bit on the rank count that wrote it); the file holds
+the system's description (``describe(sim)``) and its state. Fixes and operations are the script's
+objects: add them again after ``load``.
 
-See ``examples/`` (cantilever, drop on a wall, compression test written with the API).
+The test protocols (compression, isotropic, triaxial, biaxial, point-load response, ...) are in
+``pardem.protocols`` and their command lines in ``pardem.drivers``; see ``examples/``.
 
 Names are imported on first use (PEP 562), so ``import pardem`` itself is cheap and compiles
 nothing; ``from pardem import Simulation`` imports the module that defines it.
@@ -35,40 +41,46 @@ __version__ = "0.1.0"
 
 # public name -> (module, attribute)
 _EXPORTS = {
-    "Communicator": ("pardem.parallel.communicator", "Communicator"),
+    # the description and the builder
+    "System": ("pardem.engine.system", "System"),
+    "Particles": ("pardem.engine.system", "Particles"),
+    "ContactModel": ("pardem.engine.system", "ContactModel"),
+    "BondModel": ("pardem.engine.system", "BondModel"),
+    "WallModel": ("pardem.engine.system", "WallModel"),
+    "Cell": ("pardem.engine.system", "Cell"),
+    "Integration": ("pardem.engine.system", "Integration"),
+    "Decomposition": ("pardem.engine.system", "Decomposition"),
+    "build": ("pardem.engine.system", "build"),
+    "describe": ("pardem.engine.system", "describe"),
+    "set_contact_params": ("pardem.engine.system", "set_contact_params"),
     "Simulation": ("pardem.engine.simulation", "Simulation"),
-    "Elements": ("pardem.engine.state", "Elements"),
-    "Bonds": ("pardem.engine.state", "Bonds"),
-    "Plates": ("pardem.engine.state", "Plates"),
+    "Communicator": ("pardem.parallel.communicator", "Communicator"),
+    # materials and laws
     "BeamMaterial": ("pardem.engine.bonding", "BeamMaterial"),
-    "make_bonds": ("pardem.engine.bonding", "make_bonds"),
-    "bonded_system": ("pardem.engine.builders", "bonded_system"),
-    "granular_system": ("pardem.engine.builders", "granular_system"),
-    "critical_time_step": ("pardem.engine.builders", "critical_time_step"),
+    "WallLaw": ("pardem.physics.walls", "Params"),
+    "wall_law": ("pardem.engine.walls", "wall_law"),
+    "contact_law_params": ("pardem.physics.contact_laws", "law_params"),
+    # loads and constraints
     "add_fixes": ("pardem.engine.fixes", "add"),
     "Gravity": ("pardem.engine.fixes", "Gravity"),
     "ExternalForce": ("pardem.engine.fixes", "ExternalForce"),
     "Clamp": ("pardem.engine.fixes", "Clamp"),
     "PrescribedVelocity": ("pardem.engine.fixes", "PrescribedVelocity"),
-    "Walls": ("pardem.engine.walls", "Walls"),
-    "add_walls": ("pardem.engine.walls", "add_walls"),
-    "wall_law": ("pardem.engine.walls", "wall_law"),
-    "WallParams": ("pardem.physics.walls", "Params"),
+    # writers and measures
     "Log": ("pardem.io.log", "Log"),
+    "ParaViewWriter": ("pardem.io.paraview", "ParaViewWriter"),
+    "CheckpointWriter": ("pardem.io.checkpoint_writer", "CheckpointWriter"),
     "energies": ("pardem.io.log", "energies"),
+    "critical_time_step": ("pardem.engine.critical_step", "critical_time_step_of"),
+    # checkpoints
+    "save": ("pardem.restart", "save"),
+    "load": ("pardem.restart", "load"),
+    # geometry of domains
     "ordered_lattice": ("pardem.domains.ordered", "ordered_lattice"),
     "compact_packing": ("pardem.domains.compact", "compact_packing"),
     "compact_domain": ("pardem.domains.compact", "compact_domain"),
+    "simple_cubic": ("pardem.engine.granular", "simple_cubic"),
     "lrt_frame": ("pardem.physics.anisotropy", "lrt_frame"),
-    "save": ("pardem.engine.snapshot", "write"),
-    "load": ("pardem.engine.snapshot", "load"),
-    "granular_build": ("pardem.engine.granular", "build"),
-    "granular_write": ("pardem.engine.granular", "write"),
-    "granular_restore": ("pardem.engine.granular", "restore"),
-    "build_case": ("pardem.protocols.compression", "build_case"),
-    "measure": ("pardem.protocols.compression", "measure"),
-    "restore_case": ("pardem.protocols.compression", "restore_case"),
-    "write_checkpoint": ("pardem.io.checkpoint", "write_checkpoint"),
 }
 
 __all__ = ["__version__", *_EXPORTS]

@@ -188,3 +188,45 @@ def ran_to_end(p):
     was too short to measure (tests of checkpoints and restarts use short runs on purpose)."""
     return p.returncode == 0 or (p.returncode == EXIT_NOT_MEASURED and "too short to measure" in p.stderr
                                  and "Traceback" not in p.stderr)
+
+
+# -- systems for the tests, described in a few arguments --------------------------------------
+
+def granular_case(comm, positions, radii, density, law, params, box_lo, box_length, dt, skin,
+                  periodic=(True, True, True), rate=(0.0, 0.0, 0.0), servo=None, viscous_damping=0.0,
+                  velocities=None, angular_velocities=None, slab_axis=0, balance_every=0, dimension=3,
+                  thickness=None, orientation=True):
+    """A ``GranularCase`` of spheres in contact in a cell, through the one builder
+    (``pardem.engine.system.build``): the tests' shorthand for the ``System`` it describes."""
+    from pardem.engine.granular import build_case
+    from pardem.engine.system import Cell, ContactModel, Decomposition, Integration, Particles, System
+    system = System(Particles(positions, radii, density, velocities, angular_velocities),
+                    contacts=ContactModel(law, dict(params)),
+                    cell=Cell(box_lo, box_length, periodic, rate, servo, thickness),
+                    integration=Integration(dt=dt, viscous_damping=viscous_damping, orientation=orientation),
+                    decomposition=Decomposition(slab_axis=slab_axis, skin=skin, balance_every=balance_every),
+                    dimension=dimension)
+    return build_case(comm, system)
+
+
+def bonded_sim(comm, positions, radii, density, pairs, material, frame=None, dt=None, dt_fraction=0.3,
+               walls=None, contacts=None, viscous_damping=0.0, velocities=None, skin=None, slab_axis="auto",
+               balance_every=0, max_speed=1e4):
+    """A ``Simulation`` of bonded spheres (``walls``: keywords of a ``WallModel`` plus the wall law's;
+    ``contacts``: ``{"law": ..., "params": {...}}``), through the one builder: the tests' shorthand."""
+    from pardem.engine.system import (BondModel, ContactModel, Decomposition, Integration, Particles, System,
+                                      WallModel, build)
+    from pardem.engine.walls import wall_law
+    wm = None
+    if walls is not None:
+        w = dict(walls)
+        geometry = {k: w.pop(k) for k in ("normals", "points", "velocities") if k in w}
+        law = w.pop("law", "linear")
+        wm = WallModel(law=law if not isinstance(law, str) else wall_law(law, **w), **geometry)
+    cm = None if contacts is None else ContactModel(contacts["law"], dict(contacts.get("params", {})))
+    system = System(Particles(positions, radii, density, velocities),
+                    bonds=BondModel(material, pairs, frame), contacts=cm, walls=wm,
+                    integration=Integration(dt=dt, dt_fraction=dt_fraction, viscous_damping=viscous_damping,
+                                            max_speed=max_speed),
+                    decomposition=Decomposition(slab_axis=slab_axis, skin=skin, balance_every=balance_every))
+    return build(comm, system)

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 import pardem
+from _util import bonded_sim
+from pardem.engine.walls import add_walls
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
@@ -25,7 +27,7 @@ def comm():
 
 
 def sphere(comm, z=R, v=(0.0, 0.0, 0.0), **kw):
-    return pardem.bonded_system(comm, [[0.0, 0.0, z]], R, RHO, np.zeros((0, 2), int), material(),
+    return bonded_sim(comm, [[0.0, 0.0, z]], R, RHO, np.zeros((0, 2), int), material(),
                                 velocities=[v], **kw)
 
 
@@ -34,7 +36,7 @@ def sphere(comm, z=R, v=(0.0, 0.0, 0.0), **kw):
 def test_import_is_lazy_and_exports_resolve():
     code = ("import sys, pardem; assert 'numba' not in sys.modules and 'mpi4py' not in sys.modules, "
             "sorted(m for m in sys.modules if m.startswith(('numba', 'mpi4py', 'pardem.')));"
-            "from pardem import Simulation, bonded_system, Clamp, Log, add_walls, build_case;"
+            "from pardem import Simulation, build, System, Clamp, Log, save;"
             "assert Simulation.__module__ == 'pardem.engine.simulation';"
             "assert set(pardem.__all__) <= set(dir(pardem)); print(pardem.__version__)")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300)
@@ -53,7 +55,7 @@ def test_every_export_exists():
 
 def test_dt_above_the_critical_step_is_refused(comm):
     x = [[0, 0, 0], [2 * R, 0, 0]]
-    sim = pardem.bonded_system(comm, x, R, RHO, [[0, 1]], material())
+    sim = bonded_sim(comm, x, R, RHO, [[0, 1]], material())
     # two equal masses on one axial spring: omega^2 = 2 k / m, the stability limit is 2 / omega;
     # the Gershgorin bound of the builder may only be more conservative (smaller)
     k = 1e8 * np.pi * (0.5 * R) ** 2 / (2 * R)
@@ -61,36 +63,36 @@ def test_dt_above_the_critical_step_is_refused(comm):
     assert sim.dt_critical <= 2.0 / np.sqrt(2 * k / m) * (1 + 1e-12)
     assert sim.dt == pytest.approx(0.3 * sim.dt_critical, rel=1e-15)
     with pytest.raises(ValueError, match="above the critical time step"):
-        pardem.bonded_system(comm, x, R, RHO, [[0, 1]], material(), dt=1.01 * sim.dt_critical)
+        bonded_sim(comm, x, R, RHO, [[0, 1]], material(), dt=1.01 * sim.dt_critical)
 
 
 @pytest.mark.parametrize("kw, message", [
-    ({"positions": [[0, 0]]}, "positions must be finite with shape"),
+    ({"positions": [[0, 0]]}, "positions must have shape \\(n, 3\\)"),
     ({"radii": [R, R, R]}, "radii must be a scalar or have shape"),
     ({"radii": -R}, "radii must be finite and > 0"),
     ({"density": 0.0}, "density must be"),
-    ({"pairs": [[0, 2]]}, "pairs must index elements 0 .. 1"),
-    ({"pairs": [[0, 0]]}, "two different elements"),
+    ({"pairs": [[0, 2]]}, "pairs must index particles 0 .. 1"),
+    ({"pairs": [[0, 0]]}, "two different particles"),
     ({"pairs": [[0, 1], [1, 0]]}, "same bond twice"),
     ({"pairs": [[0.0, 1.0]]}, "pairs must be integer"),
     ({"frame": np.ones((3, 3))}, "frame must be a \\(3, 3\\) orthonormal"),
-    ({"dt_fraction": 1.5}, "dt_fraction must be in"),
-    ({"dt": -1.0}, "dt must be a finite time step"),
-    ({"material": {"young": 1}}, "material must be a pardem.engine.bonding.BeamMaterial"),
+    ({"dt_fraction": 1.5}, "dt_fraction must be a number in"),
+    ({"dt": -1.0}, "dt must be a finite number > 0"),
+    ({"material": {"young": 1}}, "material must be a pardem BeamMaterial"),
 ])
 def test_builder_inputs_are_checked(comm, kw, message):
     args = {"positions": [[0, 0, 0], [2 * R, 0, 0]], "radii": R, "density": RHO, "pairs": [[0, 1]],
             "material": material(), **kw}
     with pytest.raises(ValueError, match=message):
-        pardem.bonded_system(comm, **args)
+        bonded_sim(comm, **args)
 
 
 def test_frame_picks_the_material_axis_of_each_bond(comm):
     x = [[0, 0, 0], [2 * R, 0, 0]]                 # one bond along world x
     aniso = material(young=(3e8, 2e8, 1e8))        # (E_L, E_R, E_T), law TOR
-    default = pardem.bonded_system(comm, x, R, RHO, [[0, 1]], aniso)
+    default = bonded_sim(comm, x, R, RHO, [[0, 1]], aniso)
     assert default.bonds.young[0] == 3e8           # identity frame: x is L
-    turned = pardem.bonded_system(comm, x, R, RHO, [[0, 1]], aniso,
+    turned = bonded_sim(comm, x, R, RHO, [[0, 1]], aniso,
                                   frame=[[0, 1, 0], [1, 0, 0], [0, 0, 1]])   # L = y, R = x
     assert turned.bonds.young[0] == 2e8
 
@@ -98,14 +100,16 @@ def test_frame_picks_the_material_axis_of_each_bond(comm):
 def test_granular_system_head_on_collision_has_the_contact_restitution(comm):
     k, e_req, v = 1e5, 0.6, 0.1
     pos = [[0.0, 0.0, 0.0], [2 * R + 0.002, 0.0, 0.0]]
-    sim = pardem.granular_system(comm, pos, R, RHO, "linear",
-                                 {"kn": k, "kt": k, "friction": 0.0, "restitution": e_req},
-                                 box_lo=[-0.2, -0.2, -0.2], box_length=[0.4, 0.4, 0.4], dt_fraction=0.02,
-                                 velocities=[[v, 0, 0], [-v, 0, 0]])
+    system = pardem.System(pardem.Particles(pos, R, RHO, velocities=[[v, 0, 0], [-v, 0, 0]]),
+                           contacts=pardem.ContactModel("linear", {"kn": k, "kt": k, "friction": 0.0,
+                                                                   "restitution": e_req}),
+                           cell=pardem.Cell(lo=[-0.2, -0.2, -0.2], length=[0.4, 0.4, 0.4]),
+                           integration=pardem.Integration(dt_fraction=0.02))
+    sim = pardem.build(comm, system)
     # the builder's dt is its fraction of the law's own critical step, which critical_time_step
     # (used for bonded systems and walls) finds again from the simulation
-    assert sim.dt == pytest.approx(0.02 * sim.case.constants["dt_critical"], rel=1e-15)
-    assert pardem.critical_time_step(sim) == pytest.approx(sim.case.constants["dt_critical"], rel=1e-12)
+    assert sim.dt == pytest.approx(0.02 * sim.dt_critical, rel=1e-15)
+    assert pardem.critical_time_step(sim) == pytest.approx(sim.dt_critical, rel=1e-12)
     m = RHO * 4 / 3 * np.pi * R**3
     omega = np.sqrt(k / (0.5 * m))                    # the pair's relative motion, m* = m / 2
     sim.run(int((0.002 / (2 * v) + 4.0 / omega) / sim.dt))
@@ -161,23 +165,23 @@ def test_add_walls_checks_the_time_step_and_its_inputs(comm):
     m = RHO * 4 / 3 * np.pi * R**3
     k_max = m * (2.0 / 1e-4) ** 2           # the wall spring's own limit dt < 2 sqrt(m / k)
     with pytest.raises(ValueError, match="above the critical time step"):
-        pardem.add_walls(sim, [[0, 0, 1]], [[0, 0, 0]], stiffness=1.01 * k_max)
+        add_walls(sim, [[0, 0, 1]], [[0, 0, 0]], stiffness=1.01 * k_max)
     assert sim.plates is None
     with pytest.raises(ValueError, match="normals must be finite non-zero"):
-        pardem.add_walls(sim, [[0, 0, 0]], [[0, 0, 0]], stiffness=1.0)
+        add_walls(sim, [[0, 0, 0]], [[0, 0, 0]], stiffness=1.0)
     with pytest.raises(ValueError, match=r"points must be finite with shape \(1, 3\)"):
-        pardem.add_walls(sim, [[0, 0, 1]], [[0, 0]], stiffness=1.0)
+        add_walls(sim, [[0, 0, 1]], [[0, 0]], stiffness=1.0)
     with pytest.raises(ValueError, match="stiffness must be a positive number"):
-        pardem.add_walls(sim, [[0, 0, 1]], [[0, 0, 0]])
-    w = pardem.add_walls(sim, [[0, 0, 2]], [[0, 0, 0]], stiffness=0.99 * k_max)
+        add_walls(sim, [[0, 0, 1]], [[0, 0, 0]])
+    w = add_walls(sim, [[0, 0, 2]], [[0, 0, 0]], stiffness=0.99 * k_max)
     assert np.array_equal(w.normals, [[0.0, 0.0, 1.0]])     # normalised
     with pytest.raises(ValueError, match="already has walls"):
-        pardem.add_walls(sim, [[0, 0, 1]], [[0, 0, 0]], stiffness=1.0)
+        add_walls(sim, [[0, 0, 1]], [[0, 0, 0]], stiffness=1.0)
 
 
 def test_frictional_walls_get_a_history_per_element(comm):
     sim = sphere(comm, dt=1e-5)
-    pardem.add_walls(sim, [[0, 0, 1], [1, 0, 0]], [[0, 0, 0], [-R, 0, 0]], stiffness=1e4, friction=0.5)
+    add_walls(sim, [[0, 0, 1], [1, 0, 0]], [[0, 0, 0], [-R, 0, 0]], stiffness=1e4, friction=0.5)
     assert sim.elements.wall_h.shape == (1, 2, 3)
     sim.run(10)
 
@@ -228,7 +232,8 @@ LOG_SCRIPT = textwrap.dedent("""
     x = np.zeros((n, 3)); x[:, 0] = 2 * R * np.arange(n)
     pairs = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
     mat = pardem.BeamMaterial(young=1e8, radius_ratio=0.5, poisson=0.3, damping=0.0)
-    sim = pardem.bonded_system(comm, x, R, 1000.0, pairs, mat, dt=2e-6)
+    sim = pardem.build(comm, pardem.System(pardem.Particles(x, R, 1000.0), bonds=pardem.BondModel(mat, pairs),
+                                           integration=pardem.Integration(dt=2e-6)))
     pardem.add_fixes(sim, pardem.ExternalForce([0, 11], [(0, 0, 1e-2), (0, 0, -1e-2)]))
     log = pardem.Log(sys.argv[1], every=500, stream=None)
     sim.run(2000, operations=[log])

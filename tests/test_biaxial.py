@@ -13,6 +13,8 @@ import subprocess
 import sys
 
 import numpy as np
+
+from pardem import restart
 import pytest
 
 from pardem.engine import granular
@@ -20,6 +22,7 @@ from pardem.protocols import isotropic
 from pardem.engine.open_cell import open_axes
 from pardem.parallel.communicator import Communicator
 from pardem.physics import hertz_mindlin
+from _util import granular_case
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -51,7 +54,7 @@ def periodic_case(comm=None, slab_axis=0, steps=200):
     """The frictional 2D periodic case after ``steps`` steps (so that tangential histories exist)."""
     comm = Communicator() if comm is None else comm
     pos, radii, L, vel = packing()
-    case = granular.build(comm, pos, radii, 2500.0, "hertz_mindlin", HERTZ, np.zeros(3), L, 2e-9, 0.05 * R,
+    case = granular_case(comm, pos, radii, 2500.0, "hertz_mindlin", HERTZ, np.zeros(3), L, 2e-9, 0.05 * R,
                           velocities=vel, dimension=2, slab_axis=slab_axis)
     case.sim.run(steps)
     return case
@@ -176,7 +179,7 @@ def column_grid(comm=None, nx=5, ny=9, spacing=2.4 * R):
     X, Y = np.meshgrid(np.arange(nx) * spacing, np.arange(ny) * spacing, indexing="ij")
     pos = np.column_stack([X.ravel() + 5 * R, Y.ravel() + 5 * R, np.zeros(nx * ny)])
     L = np.array([nx * spacing + 10 * R, ny * spacing + 10 * R, 2 * R])
-    case = granular.build(comm, pos, np.full(nx * ny, R), 2500.0, "hertz_mindlin", HERTZ, np.zeros(3), L, 2e-9,
+    case = granular_case(comm, pos, np.full(nx * ny, R), 2500.0, "hertz_mindlin", HERTZ, np.zeros(3), L, 2e-9,
                           0.05 * R, periodic=(False, False, False), dimension=2, slab_axis=0)
     gid = np.arange(nx * ny)
     row = (gid % ny)                       # meshgrid "ij": gid = ix * ny + iy
@@ -240,7 +243,7 @@ def hex_case(comm=None, slab_axis=0, mx=12, my=14, overlap=2e-3):
     pos = np.column_stack([X.ravel(), Y.ravel(), np.zeros(mx * my)])
     L = np.array([mx * a, my * h, 2 * R])
     prm = {"young": 72e9, "poisson": 0.2, "friction": 0.0, "restitution": 0.5}
-    case = granular.build(comm, pos, np.full(mx * my, R), 2500.0, "hertz_mindlin", prm, np.zeros(3), L, 1e-8,
+    case = granular_case(comm, pos, np.full(mx * my, R), 2500.0, "hertz_mindlin", prm, np.zeros(3), L, 1e-8,
                           0.1 * R, dimension=2, slab_axis=slab_axis)
     case.sim.run(0)
     s = case.sim.global_stress()
@@ -499,7 +502,7 @@ def test_restart_of_the_loading_continues_bit_for_bit(tmp_path):
     case.sim.run(120)
     want = {k: gathered(case.sim, k) for k in FIELDS}
     meta = gout.inspect_restart(path, "biaxial", comm=comm)
-    again = granular.restore(comm, path, meta=meta)
+    again = restart.load_case(comm, path, meta=meta)
     s = meta["protocol"]
     mem2, *_ = biaxial.install(again, meta["deck"], s["st"]["pc"], s["geo"], s["membrane"], moving=True, restored=True)
     again.sim.run(120)

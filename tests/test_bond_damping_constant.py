@@ -15,6 +15,7 @@ from pardem.engine.bonding import BeamMaterial, make_bonds
 from pardem.engine.state import BOND_FIELDS, Bonds, Elements
 from pardem.io.checkpoint import BOND_DATASETS
 from pardem.physics.beam import ROT_DAMPING_WIDTH, compute_bonds, rotation_damping
+from _util import bonded_sim
 
 
 def _chain(damping=0.2, n=12, seed=3):
@@ -103,7 +104,7 @@ def test_save_load_of_a_damped_system_with_unequal_ends_continues_bit_for_bit(tm
     mat = BeamMaterial(young=5e8, radius_ratio=0.7, poisson=0.25, damping=0.2)
 
     def system():
-        return pardem.bonded_system(comm, x0, e.radius, 1200.0, pairs, mat, velocities=e.v)
+        return bonded_sim(comm, x0, e.radius, 1200.0, pairs, mat, velocities=e.v)
 
     whole = system()
     whole.run(300)

@@ -44,7 +44,9 @@ SYSTEM = textwrap.dedent("""
                                   tensile_strength=1e9)    # breakable (none breaks): a switch too
         w = np.zeros_like(x)
         w[:8] = rng.normal(scale=3.0, size=(8, 3))    # spinning ends: the rotation damping acts
-        sim = pardem.bonded_system(comm, x, R, 1000.0, pairs, mat, velocities=v, slab_axis=0)
+        sim = pardem.build(comm, pardem.System(pardem.Particles(x, R, 1000.0, velocities=v),
+                                               bonds=pardem.BondModel(mat, pairs),
+                                               decomposition=pardem.Decomposition(slab_axis=0)))
         sim.elements.w[:] = w[sim.elements.gid]       # owned and ghost rows alike
         return sim
 

@@ -13,6 +13,7 @@ from pardem.engine import cement
 from pardem.engine.contacts import Contacts, pair_keys
 from pardem.physics import hertz_mindlin as hm
 from pardem.engine.state import Elements
+from _util import granular_case
 
 R = 0.5e-3
 RHO = 2500.0
@@ -321,7 +322,7 @@ def test_contact_forces_count_cemented_pairs_apart_and_fading_as_the_kernel_appl
     overlap = 1e-7
     pos = np.array([[k * (2 * R - overlap), 0.0, 0.0] for k in range(4)])
     params = dict(PARAMS, cement_normal=SN, cement_tangential=ST, cement_fade_time=1e-7)
-    case = granular.build(Communicator(), pos, R, RHO, "hertz_mindlin", params, np.full(3, -2 * R),
+    case = granular_case(Communicator(), pos, R, RHO, "hertz_mindlin", params, np.full(3, -2 * R),
                           np.full(3, 12 * R), 1e-9, 0.1 * R, periodic=(False, False, False))
     sim = case.sim
     assert cement.cement_contacts(sim, 1e-4, 5e-5, seed=3) == 3   # thresholds far above the loads

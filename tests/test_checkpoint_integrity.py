@@ -16,6 +16,8 @@ import sys
 
 import h5py
 import numpy as np
+
+from pardem import restart
 import pytest
 
 from pardem.config import DeckError
@@ -24,6 +26,7 @@ from pardem.engine.errors import InstabilityError, OutputError
 from pardem.io import checkpoint
 from pardem.io.checkpoint import CheckpointError, inspect, write_checkpoint
 from pardem.parallel.communicator import Communicator
+from _util import granular_case
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -46,13 +49,13 @@ def files(tmp_path_factory):
     R = 0.5e-3
     g = (np.arange(4) + 0.5) * 1.95 * R
     pos = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
-    case = granular.build(Communicator(), pos, np.full(len(pos), R), 2500.0, "hertz_mindlin",
+    case = granular_case(Communicator(), pos, np.full(len(pos), R), 2500.0, "hertz_mindlin",
                           {"young": 72e9, "poisson": 0.2, "friction": 0.5}, np.zeros(3), np.full(3, 4 * 1.95 * R),
                           1e-9, 0.05 * R)
     case.sim.elements.v[:] = np.random.default_rng(3).normal(size=(len(pos), 3)) * 1e-2
     case.sim.run(5)
     gran = tmp / "granular.h5"
-    granular.write(case, str(gran))
+    restart.save(case.sim, extras=case.extras, path=str(gran))
     return {"bonded": bonded, "granular": gran}
 
 

@@ -14,7 +14,9 @@ import numpy as np
 import pytest
 
 import pardem
+from pardem.engine.state import Elements
 from pardem.engine.fixes import ElementSelection, add
+from _util import bonded_sim
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
@@ -26,11 +28,11 @@ def chain(comm, n=6, damping=0.0, **kw):
     x[:, 0] = 2.0 * R * np.arange(n)
     pairs = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
     mat = pardem.BeamMaterial(young=1e8, radius_ratio=0.5, poisson=0.3, damping=damping)
-    return pardem.bonded_system(comm, x, R, RHO, pairs, mat, **kw)
+    return bonded_sim(comm, x, R, RHO, pairs, mat, **kw)
 
 
 def free_sphere(comm, v0=(0.0, 0.0, 0.0), dt=1e-4):
-    return pardem.bonded_system(comm, np.zeros((1, 3)), R, RHO, np.zeros((0, 2), int), 
+    return bonded_sim(comm, np.zeros((1, 3)), R, RHO, np.zeros((0, 2), int), 
                                 pardem.BeamMaterial(young=1e8, radius_ratio=0.5, poisson=0.3, damping=0.0),
                                 dt=dt, velocities=[v0])
 
@@ -55,7 +57,7 @@ def test_gravity_free_fall_is_the_parabola(comm):
 
 def test_gravity_acts_on_every_element_with_its_own_mass(comm):
     # two unbonded spheres of different radii fall together: f = m g, a = g for both
-    sim = pardem.bonded_system(comm, [[0, 0, 0], [1, 0, 0]], [R, 2 * R], RHO, np.zeros((0, 2), int),
+    sim = bonded_sim(comm, [[0, 0, 0], [1, 0, 0]], [R, 2 * R], RHO, np.zeros((0, 2), int),
                                pardem.BeamMaterial(young=1e8, radius_ratio=0.5, poisson=0.3, damping=0.0),
                                dt=1e-4)
     sim.fixes.append(pardem.Gravity((0, 0, -9.81)))
@@ -85,7 +87,7 @@ def test_external_force_gives_acceleration_f_over_m_and_torque_over_inertia(comm
 
 
 def test_external_force_per_element_rows_follow_the_gids(comm):
-    sim = pardem.bonded_system(comm, [[0, 0, 0], [1, 0, 0], [2, 0, 0]], R, RHO, np.zeros((0, 2), int),
+    sim = bonded_sim(comm, [[0, 0, 0], [1, 0, 0], [2, 0, 0]], R, RHO, np.zeros((0, 2), int),
                                pardem.BeamMaterial(young=1e8, radius_ratio=0.5, poisson=0.3, damping=0.0),
                                dt=1e-4)
     # gids given out of order: row m of force belongs to gids[m]
@@ -190,7 +192,7 @@ def test_selection_cache_follows_new_elements_objects(comm):
     # a new Elements object with reversed rows (as a migration would build): resolved again
     e = sim.elements
     rev = np.arange(e.n_total)[::-1]
-    e2 = pardem.Elements.unpack([e.pack(rev)], e.n_owned)
+    e2 = Elements.unpack([e.pack(rev)], e.n_owned)
     rows2, idx2 = sel.rows(e2, comm)
     assert np.array_equal(e2.gid[rows2], np.array([3, 1])[idx2]) and len(rows2) == 2
     assert not np.array_equal(rows, rows2)
@@ -207,7 +209,8 @@ RANKS_SCRIPT = textwrap.dedent("""
     x = np.zeros((n, 3)); x[:, 0] = 2 * R * np.arange(n)
     pairs = np.stack([np.arange(n - 1), np.arange(1, n)], axis=1)
     mat = pardem.BeamMaterial(young=1e8, radius_ratio=0.5, poisson=0.3, damping=0.1)
-    sim = pardem.bonded_system(comm, x, R, 1000.0, pairs, mat, dt=2e-6)
+    sim = pardem.build(comm, pardem.System(pardem.Particles(x, R, 1000.0), bonds=pardem.BondModel(mat, pairs),
+                                           integration=pardem.Integration(dt=2e-6)))
     pardem.add_fixes(sim, pardem.Clamp([0]), pardem.Gravity(), pardem.ExternalForce([11, 6], (0, 1e-3, 0)),
                      pardem.PrescribedVelocity([5], (0, 0, 1e-3), dofs="z"))
     sim.run(3000)
@@ -253,7 +256,9 @@ MIGRATION_SCRIPT = textwrap.dedent("""
     R, dt, V, n = 0.01, 1e-3, 2.5, 1000
     x = [[0.0, 0, 0], [1.0, 0, 0], [2.0, 0, 0], [3.0, 0, 0]]     # far apart: no bonds, no contacts
     mat = pardem.BeamMaterial(young=1e8, radius_ratio=0.5, poisson=0.3, damping=0.0)
-    sim = pardem.bonded_system(comm, x, R, 1000.0, np.zeros((0, 2), int), mat, dt=dt, slab_axis=0)
+    sim = pardem.build(comm, pardem.System(pardem.Particles(x, R, 1000.0), bonds=pardem.BondModel(mat),
+                                           integration=pardem.Integration(dt=dt),
+                                           decomposition=pardem.Decomposition(slab_axis=0)))
     drive = pardem.PrescribedVelocity([0], (V, 0, 0))
     push = pardem.ExternalForce([3], (1e-3, 0, 0))
     pardem.add_fixes(sim, drive, push)

@@ -9,6 +9,8 @@ import subprocess
 import sys
 
 import numpy as np
+
+from pardem import restart
 import pytest
 
 from pardem.engine import granular
@@ -16,6 +18,7 @@ from pardem.engine.contacts import STRESS, pair_keys
 from pardem.parallel.communicator import Communicator
 from pardem.physics.hertz_mindlin import effective_moduli
 from pardem.engine.errors import InstabilityError
+from _util import granular_case
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 SCRIPT = os.path.join(os.path.dirname(__file__), "mpi", "granular_run.py")
@@ -125,7 +128,7 @@ def test_love_weber_stress_equals_cell_virial():
     cell and its contents, by central differences of a brute-force Hertz energy."""
     pos, radii, L = dense_packing()
     young, poisson = 72e9, 0.2
-    case = granular.build(Communicator(), pos, radii, 2500.0, "hertz_mindlin",
+    case = granular_case(Communicator(), pos, radii, 2500.0, "hertz_mindlin",
                           {"young": young, "poisson": poisson, "friction": 0.0}, np.zeros(3),
                           np.full(3, L), 1e-9, 0.05 * R)
     sim = case.sim
@@ -160,7 +163,7 @@ def test_affine_cell_maps_positions_and_edges_exactly():
     """Spheres far apart in a cell deforming at a diagonal rate follow x = lo + (x0 - lo) prod(1 + g dt)."""
     pos, L = granular.simple_cubic(4, R, spacing=4.0, jitter=0.0)
     rate = (-500.0, 200.0, 0.0)
-    case = granular.build(Communicator(), pos, R, 2500.0, "hertz_mindlin",
+    case = granular_case(Communicator(), pos, R, 2500.0, "hertz_mindlin",
                           {"young": 72e9, "poisson": 0.2}, np.zeros(3), np.full(3, L), 1e-8, 0.1 * R,
                           rate=rate)
     case.sim.run(1000)
@@ -177,7 +180,7 @@ def test_affine_motion_loads_the_tangential_spring():
     d = np.array([1.0, 1.0, 0.0]) / np.sqrt(2.0) * 1.999 * R
     pos = np.array([[5 * R, 5 * R, 5 * R], [5 * R, 5 * R, 5 * R] + d])
     g, dt, steps = 50.0, 1e-8, 200
-    case = granular.build(Communicator(), pos, R, 2500.0, "linear",
+    case = granular_case(Communicator(), pos, R, 2500.0, "linear",
                           {"kn": 1e5, "kt": kt, "friction": 10.0}, np.zeros(3), np.full(3, 10 * R),
                           dt, 0.1 * R, rate=(g, 0.0, 0.0))
     sim = case.sim
@@ -205,7 +208,7 @@ def test_servo_compresses_a_gas_to_the_target_pressure():
     L = (np.sum(4.0 / 3.0 * np.pi * radii**3) / 0.35) ** (1.0 / 3.0)
     pos = rng.uniform(0.0, L, (n, 3))
     p0 = 1e6
-    case = granular.build(Communicator(), pos, radii, 2500.0, "hertz_mindlin",
+    case = granular_case(Communicator(), pos, radii, 2500.0, "hertz_mindlin",
                           {"young": 72e9, "poisson": 0.2, "friction": 0.0, "restitution": 0.5},
                           np.zeros(3), np.full(3, L), 1e-8, 0.1 * R, servo=(p0, 4e-3, 2000.0),
                           viscous_damping=1e5)
@@ -245,7 +248,7 @@ def test_servo_gain_cap_keeps_the_discrete_loop_stable():
 def test_coordination_and_solid_fraction_against_brute_force():
     from pardem.engine.reducer import granular_measures
     pos, radii, L = dense_packing(n=5, spacing=1.97)
-    case = granular.build(Communicator(), pos, radii, 2500.0, "hertz_mindlin",
+    case = granular_case(Communicator(), pos, radii, 2500.0, "hertz_mindlin",
                           {"young": 72e9, "poisson": 0.2, "friction": 0.0}, np.zeros(3), np.full(3, L),
                           1e-9, 0.05 * R)
     case.sim.run(0)
@@ -283,7 +286,7 @@ def test_linear_contact_critical_step_is_the_stability_limit():
     vel[:, 0] = 1e-3 * np.array([1, -1, 0.5, -0.3, 0.2, -0.4])
     grown = {}
     for f in (0.97, 1.03):
-        case = granular.build(Communicator(), pos, R, 2500.0, "linear", {"kn": kn, "kt": kn, "friction": 0.0},
+        case = granular_case(Communicator(), pos, R, 2500.0, "linear", {"kn": kn, "kt": kn, "friction": 0.0},
                               np.zeros(3), np.array([6 * a, 12 * R, 12 * R]), 0.5 * dt_c, 0.2 * R,
                               velocities=vel)
         case.sim.dt = f * dt_c / np.sqrt(2.0)    # past the refusal, to see what it protects from
@@ -295,7 +298,7 @@ def test_linear_contact_critical_step_is_the_stability_limit():
     assert grown[0.97] < 1e-2
     assert grown[1.03] == np.inf            # diverged and stopped
     with pytest.raises(ValueError, match="dt = .* expected a value in"):
-        granular.build(Communicator(), pos, R, 2500.0, "linear", {"kn": kn, "kt": kn}, np.zeros(3),
+        granular_case(Communicator(), pos, R, 2500.0, "linear", {"kn": kn, "kt": kn}, np.zeros(3),
                        np.array([6 * a, 12 * R, 12 * R]), 1.01 * dt_c, 0.2 * R)
 
 
@@ -330,16 +333,16 @@ def test_a_cell_too_short_for_the_reach_is_refused_before_any_work():
     """The period check uses the global reach 2 R_max + skin (the same on every rank)."""
     pos, L = granular.simple_cubic(4, R, spacing=2.2, jitter=0.0)
     with pytest.raises(ValueError, match="periodic axis y: period .* shorter than twice the contact reach"):
-        granular.build(Communicator(), pos, R, 2500.0, "hertz_mindlin", {"young": 72e9, "poisson": 0.2},
+        granular_case(Communicator(), pos, R, 2500.0, "hertz_mindlin", {"young": 72e9, "poisson": 0.2},
                        np.zeros(3), np.array([L, 4.1 * R, L]), 1e-8, 0.1 * R)
 
 
 def test_centres_outside_the_cell_are_wrapped_in():
     pos, L = granular.simple_cubic(4, R, spacing=2.2, jitter=0.0)
     shifted = pos + np.array([3 * L, -2 * L, 0.0])
-    a = granular.build(Communicator(), pos, R, 2500.0, "hertz_mindlin", {"young": 72e9, "poisson": 0.2},
+    a = granular_case(Communicator(), pos, R, 2500.0, "hertz_mindlin", {"young": 72e9, "poisson": 0.2},
                        np.zeros(3), np.full(3, L), 1e-8, 0.1 * R)
-    b = granular.build(Communicator(), shifted, R, 2500.0, "hertz_mindlin", {"young": 72e9, "poisson": 0.2},
+    b = granular_case(Communicator(), shifted, R, 2500.0, "hertz_mindlin", {"young": 72e9, "poisson": 0.2},
                        np.zeros(3), np.full(3, L), 1e-8, 0.1 * R)
     np.testing.assert_allclose(b.sim.elements.x, a.sim.elements.x, rtol=0, atol=1e-15)
 
@@ -349,7 +352,7 @@ def _spinning_gas(orientation):
     the grains, so their orientations change a lot within a few hundred steps."""
     pos, radii, L = dense_packing()
     w0 = np.random.default_rng(9).normal(0.0, 2e3, (len(pos), 3))     # rad/s
-    return granular.build(Communicator(), pos, radii, 2500.0, "hertz_mindlin",
+    return granular_case(Communicator(), pos, radii, 2500.0, "hertz_mindlin",
                           {"young": 72e9, "poisson": 0.2, "friction": 0.5}, np.zeros(3),
                           np.full(3, L), 2e-9, 0.05 * R, angular_velocities=w0,
                           orientation=orientation)
@@ -373,8 +376,8 @@ def test_without_orientation_the_motion_is_the_same_to_the_bit(tmp_path):
     # per step over 300 steps)
     assert np.abs(a.elements.q - q0).max() > 1e-4
     path = tmp_path / "off.h5"
-    granular.write(off, str(path))
-    back = granular.restore(Communicator(), str(path))
+    restart.save(off.sim, extras=off.extras, path=str(path))
+    back = restart.load_case(Communicator(), str(path))
     assert back.sim.orientation is False
     back.sim.run(50)
     off.sim.run(50)

@@ -16,6 +16,8 @@ sliding of the weakest contacts, in 3D and 2D, where one-step increments fall fa
 import os
 
 import numpy as np
+
+from pardem import restart
 import pytest
 
 from pardem.config import load_deck
@@ -288,7 +290,7 @@ def test_moduli_check_on_a_checkpoint_on_two_ranks(packing, tmp_path):
     import sys
     from pardem.engine import granular
     path = tmp_path / "prepared.h5"
-    granular.write(packing["case"], str(path))
+    restart.save(packing["case"].sim, extras=packing["case"].extras, path=str(path))
     e = packing["strain"]
     mat = {"shear_modulus": G, "poisson": NU, "friction": 0.3}
     one = moduli_check.from_checkpoint(Communicator(), str(path), mat, e)
@@ -316,12 +318,12 @@ def prepared_files(packing, tmp_path_factory):
     fixture's, and a 2D one (100 spheres in the plane z = 0, FIRE, 1 MPa)."""
     from pardem.engine import granular
     d = tmp_path_factory.mktemp("prepared")
-    granular.write(packing["case"], str(d / "p3.h5"))
+    restart.save(packing["case"].sim, extras=packing["case"].extras, path=str(d / "p3.h5"))
     deck2 = load_deck(iso.SCHEMA, SMALL, ["sample.n=100", f"preparation.pressures=[{P0}]", "domain.dimension=2",
                                           'preparation.relaxation="fire"'])
     case2, info2 = iso.prepare(Communicator(), deck2, P0)
     assert info2["converged"]
-    granular.write(case2, str(d / "p2.h5"))
+    restart.save(case2.sim, extras=case2.extras, path=str(d / "p2.h5"))
     return {3: (str(d / "p3.h5"), packing["deck"]), 2: (str(d / "p2.h5"), deck2)}
 
 
@@ -379,7 +381,7 @@ def measure(path, deck, dim, friction, ramp):
     ones of the same state (``moduli_check.static_moduli``, as the sweep computes them), the
     residual errors of every relaxed state and the mode measures."""
     from pardem.engine import granular
-    case = granular.restore(Communicator(), path)
+    case = restart.load_case(Communicator(), path)
     sim = case.sim
     sim.compute_forces()
     sim.viscous_damping = deck["preparation"]["damping"]

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from pardem.physics import membrane
+from _util import granular_case
 
 D = 2e-4        # grain diameter [m]
 
@@ -233,7 +234,7 @@ def sample_case(comm, seed=5, slot=None, nx=60, ny=50):
     pos = np.column_stack([x + 5 * R, np.zeros(len(x))])
     L = np.array([x[:, 0].max() + 10 * R, x[:, 1].max() + 10 * R, 2 * R])
     prm = {"young": 70e9, "poisson": 0.2, "friction": 0.3, "restitution": 0.9}
-    case = granular.build(comm, pos, np.full(len(x), R), 2500.0, "hertz_mindlin", prm, np.zeros(3), L, 2e-9,
+    case = granular_case(comm, pos, np.full(len(x), R), 2500.0, "hertz_mindlin", prm, np.zeros(3), L, 2e-9,
                           0.05 * R, periodic=(False, False, False), dimension=2, slab_axis=0)
     gid = np.arange(len(x))
     mem = MembraneLoad(gid[bottom], gid[top], 1e6, 2 * R, 1.5 * a, rebuild_every=0)

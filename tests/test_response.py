@@ -38,6 +38,7 @@ from pardem.protocols import response
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tests", "mpi"))
 import response_run  # noqa: E402
+from _util import granular_case
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 SHORT = os.path.join(ROOT, "drivers", "response_short.toml")
@@ -289,7 +290,7 @@ def _frictional_packing(comm, m=8, seed=5):
     spin[:, 2] = rng.normal(0.0, 500.0, m * m)
     params = {"young": 72e9, "poisson": 0.2, "friction": 0.5, "restitution": 0.9}
     L = np.array([m * a, m * a * math.sqrt(3) / 2, 0.0])
-    case = granular.build(comm, pos, radii, 2500.0, "hertz_mindlin", params, np.zeros(3), L, 1e-8, 0.1 * R,
+    case = granular_case(comm, pos, radii, 2500.0, "hertz_mindlin", params, np.zeros(3), L, 1e-8, 0.1 * R,
                           velocities=vel, angular_velocities=spin, dimension=2, viscous_damping=2e4)
     case.sim.run(300)
     return case

@@ -8,9 +8,12 @@ import sys
 import textwrap
 
 import numpy as np
+
+from pardem import restart
 import pytest
 
 import pardem
+from _util import granular_case
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
@@ -32,12 +35,12 @@ SYSTEM = textwrap.dedent("""
         x = np.vstack([x, [[6.5 * R, 2 * R, 1.2 * R]]])       # a loose sphere beside the column
         v = np.zeros_like(x); v[:n, 2] = -0.5; v[:n, 0] = 0.2
         mat = pardem.BeamMaterial(young=1e7, radius_ratio=0.5, poisson=0.3, damping=0.05)
-        return pardem.bonded_system(comm, x, R, 1000.0, pairs, mat, velocities=v,
-                                    walls={"normals": [[0, 0, 1]], "points": [[0, 0, 0]], "stiffness": 2e4,
-                                           "friction": 0.4},
-                                    contacts={"law": "hertz_mindlin", "params": {"young": 1e7, "poisson": 0.3,
-                                                                                  "friction": 0.3}},
-                                    slab_axis=0)
+        walls = pardem.WallModel(normals=[[0, 0, 1]], points=[[0, 0, 0]],
+                                 law=pardem.wall_law("linear", stiffness=2e4, friction=0.4))
+        contacts = pardem.ContactModel("hertz_mindlin", {"young": 1e7, "poisson": 0.3, "friction": 0.3})
+        return pardem.build(comm, pardem.System(pardem.Particles(x, R, 1000.0, velocities=v),
+                                                bonds=pardem.BondModel(mat, pairs), contacts=contacts,
+                                                walls=walls, decomposition=pardem.Decomposition(slab_axis=0)))
 
     def state(sim):
         e = sim.elements
@@ -89,11 +92,11 @@ def test_load_refuses_a_protocol_checkpoint(tmp_path):
     from pardem.io.checkpoint import CheckpointError
     comm = pardem.Communicator()
     pos, L = granular.simple_cubic(3, 1e-3)
-    case = granular.build(comm, pos, 1e-3, 2500.0, "linear", {"kn": 1e3, "kt": 1e3, "friction": 0.3},
+    case = granular_case(comm, pos, 1e-3, 2500.0, "linear", {"kn": 1e3, "kt": 1e3, "friction": 0.3},
                           [0, 0, 0], [L, L, L], 1e-6, 1e-4)
     path = str(tmp_path / "g.h5")
-    granular.write(case, path)
-    with pytest.raises(CheckpointError, match="not a checkpoint of snapshot.write"):
+    restart.save(case.sim, extras=case.extras, path=path)
+    with pytest.raises(CheckpointError, match="not a checkpoint of a pardem System"):
         pardem.load(comm, path)
 
 

@@ -24,6 +24,7 @@ from pardem.engine.state import Elements, Plates
 from pardem.io.checkpoint import ALLOW_INF, inspect
 from pardem.parallel.communicator import Communicator
 from pardem.physics.finite import count_nan, count_nonfinite, first_nonfinite
+from _util import granular_case
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 
@@ -70,7 +71,7 @@ def granular_sim():
     R = 0.5e-3
     L = 6 * R
     pos = np.array([[R, R, R], [2.9 * R, R, R], [R, 2.95 * R, 1.5 * R]])
-    case = granular.build(Communicator(), pos, np.full(3, R), 2500.0, "hertz_mindlin",
+    case = granular_case(Communicator(), pos, np.full(3, R), 2500.0, "hertz_mindlin",
                           {"young": 72e9, "poisson": 0.2, "friction": 0.5}, np.zeros(3), np.full(3, L),
                           1e-9, 0.05 * R)
     case.sim.elements.v[1] = [0.0, 1e-2, 0.0]   # sliding: the tangential spring loads

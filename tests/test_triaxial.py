@@ -12,6 +12,8 @@ import subprocess
 import sys
 
 import numpy as np
+
+from pardem import restart
 import pytest
 
 from pardem.engine import granular
@@ -55,7 +57,7 @@ def prepared(tmp_path_factory):
     assert n > 2.5 * 216                     # coordination above 5
     triaxial.start_loading(case, deck)
     path = d / "prepared.h5"
-    granular.write(case, str(path))
+    restart.save(case.sim, extras=case.extras, path=str(path))
     return d, path, n, voigt_moduli(case)
 
 
@@ -106,7 +108,7 @@ def secant_floor(path, d_eps_axial, d_eps_vol, duration):
     with one solve and Cauchy-Schwarz: 5 % of the floor here); and the preparation's force residual
     (it stops at a kinetic ratio: W moves by ``equilibrium_correction`` at zero strain, 0.4 %)."""
     from pardem.physics import linear_response as lr
-    case = granular.restore(Communicator(), str(path))
+    case = restart.load_case(Communicator(), str(path))
     sim = case.sim
     c, e, p = sim.contacts, sim.elements, sim.contacts.params
     n = e.n_owned

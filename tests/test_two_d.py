@@ -20,6 +20,8 @@ import subprocess
 import sys
 
 import numpy as np
+
+from pardem import restart
 import pytest
 
 import pardem
@@ -29,6 +31,7 @@ from pardem.engine.periodic_cell import PeriodicCell
 from pardem.io.paraview import ParaViewWriter, piece_mesh
 from pardem.parallel.communicator import Communicator
 from pardem.physics import hertz_mindlin
+from _util import granular_case
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -68,9 +71,9 @@ def build(dim, pos, radii, L, vel, spin, comm=None, law="hertz_mindlin", **kw):
     comm = Communicator() if comm is None else comm
     kw.setdefault("rate", (-40.0, -20.0, 0.0))
     if dim == 2:
-        return granular.build(comm, pos, radii, 2500.0, law, LAWS[law], np.zeros(3), L, 1e-8, 0.05 * R,
+        return granular_case(comm, pos, radii, 2500.0, law, LAWS[law], np.zeros(3), L, 1e-8, 0.05 * R,
                               velocities=vel, angular_velocities=spin, dimension=2, **kw)
-    return granular.build(comm, pos, radii, 2500.0, law, LAWS[law], np.array([0.0, 0.0, -0.5 * L[2]]),
+    return granular_case(comm, pos, radii, 2500.0, law, LAWS[law], np.array([0.0, 0.0, -0.5 * L[2]]),
                           L, 1e-8, 0.05 * R, periodic=(True, True, False), velocities=vel,
                           angular_velocities=spin, **kw)
 
@@ -286,8 +289,8 @@ def test_restart_continues_bit_for_bit_in_2d(tmp_path):
     case = build(2, pos, radii, L, vel, spin, rate=(0.0, 0.0, 0.0), servo=servo)
     case.sim.run(300)
     path = str(tmp_path / "two_d.h5")
-    granular.write(case, path)
-    back = granular.restore(Communicator(), path)
+    restart.save(case.sim, extras=case.extras, path=path)
+    back = restart.load_case(Communicator(), path)
     assert back.constants["dimension"] == 2 and back.sim.cell.dimension == 2
     assert isinstance(back.sim.fixes[-1], PlaneConstraint)
     back.sim.run(300)
@@ -302,8 +305,8 @@ def test_restart_continues_bit_for_bit_in_2d(tmp_path):
 
 def test_save_load_and_paraview_in_2d(tmp_path):
     pos, radii, L, vel, spin = planar_packing(6)
-    sim = pardem.granular_system(Communicator(), pos, radii, 2500.0, "hertz_mindlin", HERTZ, np.zeros(3), L,
-                                 dt=1e-8, dimension=2, velocities=vel, angular_velocities=spin)
+    sim = granular_case(Communicator(), pos, radii, 2500.0, "hertz_mindlin", HERTZ, np.zeros(3), L,
+                        dt=1e-8, skin=None, dimension=2, velocities=vel, angular_velocities=spin).sim
     sim.run(100)
     path = str(tmp_path / "s.h5")
     pardem.save(sim, path)

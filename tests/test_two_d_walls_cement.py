@@ -22,14 +22,18 @@ import subprocess
 import sys
 
 import numpy as np
+
+from pardem import restart
 import pytest
 
 import pardem
 from pardem.engine import cement, fixes, granular
 from pardem.engine.plane import PlaneConstraint, plane_of
+from pardem.engine.system import set_contact_params
 from pardem.engine.walls import add_walls
 from pardem.parallel.communicator import Communicator
 from pardem.physics import hertz_mindlin as hm
+from _util import granular_case
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 R = 0.1e-3
@@ -70,10 +74,10 @@ def build(dim, pos, radii, lo, length, periodic, vel=None, spin=None, comm=None,
     thickness (the mean diameter) centred on the plane."""
     comm = Communicator() if comm is None else comm
     if dim == 2:
-        return granular.build(comm, pos, radii, RHO, "hertz_mindlin", params, lo[:2], length[:2], DT, SKIN,
+        return granular_case(comm, pos, radii, RHO, "hertz_mindlin", params, lo[:2], length[:2], DT, SKIN,
                               periodic=periodic[:2], velocities=vel, angular_velocities=spin, dimension=2, **kw)
     t = 2.0 * float(np.mean(radii))
-    return granular.build(comm, pos, radii, RHO, "hertz_mindlin", params, [lo[0], lo[1], -0.5 * t],
+    return granular_case(comm, pos, radii, RHO, "hertz_mindlin", params, [lo[0], lo[1], -0.5 * t],
                           [length[0], length[1], t], DT, SKIN, periodic=(periodic[0], periodic[1], False),
                           velocities=vel, angular_velocities=spin, **kw)
 
@@ -178,9 +182,9 @@ def test_2d_grain_bounces_on_a_moving_tilted_wall_with_restitution_e(law, e_targ
     gap = 50 * approach * dt                                    # touches after 50 steps
     x0 = np.array([[0.0, 0.0, 0.0]])
     wall_point = x0[0] - (R + gap) * n
-    sim = pardem.granular_system(Communicator(), x0, [R], RHO, "hertz_mindlin", params, [-10 * R, -10 * R],
-                                 [20 * R, 20 * R], dt=dt, skin=SKIN, periodic=(False, False), dimension=2,
-                                 velocities=v_in[None, :])
+    sim = granular_case(Communicator(), x0, [R], RHO, "hertz_mindlin", params, [-10 * R, -10 * R],
+                        [20 * R, 20 * R], dt=dt, skin=SKIN, periodic=(False, False), dimension=2,
+                        velocities=v_in[None, :]).sim
     walls = add_walls(sim, [n], [wall_point], velocities=[wall_v], **wall)
     sim.run(int(2000 * 1.3) + 200)     # the contact lasts ~2000 steps (less when damped)
     e = sim.elements
@@ -264,8 +268,8 @@ def test_restart_with_walls_in_2d_continues_bit_for_bit(tmp_path, writer):
         pardem.save(case.sim, path)
         back = pardem.load(Communicator(), path)
     else:
-        granular.write(case, path)
-        back = granular.restore(Communicator(), path).sim
+        restart.save(case.sim, extras=case.extras, path=path)
+        back = restart.load_case(Communicator(), path).sim
     assert isinstance(back.fixes[-1], PlaneConstraint) and back.plates is not None
     back.run(700)
     a, b = by_gid(ref.sim), by_gid(back)
@@ -288,7 +292,7 @@ def cemented_case(dim, comm=None, slab_axis=0, steps_before=100):
     case = build(dim, pos, radii, np.zeros(2), np.array([lx, ly]), (True, True), vel, spin, comm=comm,
                  slab_axis=slab_axis, balance_every=50)
     case.sim.run(steps_before)
-    granular.set_contact_params(case, {**HERTZ, **CEMENT})
+    set_contact_params(case.sim, {**HERTZ, **CEMENT})
     made = cement.cement_contacts(case.sim, E_MEAN, E_HALF, seed=11)
     case.sim.cell.rate = np.array([300.0, -100.0, 0.0])
     return case, made
@@ -345,11 +349,11 @@ def test_cemented_pair_in_the_plane_breaks_at_the_analytic_tension():
     delta0 = 2e-7
     pos = np.array([[0.0, 0.0, 0.0], (2 * R - delta0) * u])
     params = {**HERTZ, "restitution": 1.0}
-    case = granular.build(Communicator(), pos, [R, R], RHO, "hertz_mindlin", params, [-5 * R, -5 * R],
+    case = granular_case(Communicator(), pos, [R, R], RHO, "hertz_mindlin", params, [-5 * R, -5 * R],
                           [12 * R, 12 * R], DT, SKIN, periodic=(False, False), dimension=2)
     sim = case.sim
     sim.run(0)
-    granular.set_contact_params(case, {**params, **CEMENT})
+    set_contact_params(case.sim, {**params, **CEMENT})
     e_th = 1e-8
     assert cement.cement_contacts(sim, e_th, 0.0, seed=3) == 1
     assert sim.contacts.history[0, hm.CEMENT_THRESHOLD] == e_th      # half_width 0: exactly the mean
@@ -422,8 +426,8 @@ def test_restart_of_a_cemented_2d_packing_continues_bit_for_bit(tmp_path):
     case, _ = cemented_case(2)
     case.sim.run(1000)
     path = str(tmp_path / "cement.h5")
-    granular.write(case, path)
-    back = granular.restore(Communicator(), path)
+    restart.save(case.sim, extras=case.extras, path=path)
+    back = restart.load_case(Communicator(), path)
     assert back.sim.contacts.params.cemented and isinstance(back.sim.fixes[-1], PlaneConstraint)
     back.sim.run(1000)
     a, b = by_gid(ref.sim), by_gid(back.sim)

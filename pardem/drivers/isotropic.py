@@ -133,7 +133,7 @@ class Isotropic(GranularDriver):
         st = run.state["sweep"].state
         deck = run.deck
         return {"rows": st["rows"], "details": st["details"], "criteria": iso.criteria_text(deck),
-                "dt": float(run.case.constants["dt"]),
+                "dt": float(run.case.extras["dt"]),
                 "units": {"p0": "Pa", "p": "Pa", "K_affine": "Pa", "K_relaxed": "Pa",
                           "mu_affine": "Pa", "mu_relaxed": "Pa", "K_static": "Pa", "mu_static": "Pa", "Z": "1",
                           "solid_fraction": "1"},

@@ -35,7 +35,7 @@ from pardem.io.checkpoint_writer import CheckpointWriter
 from pardem.io.paraview import ParaViewWriter
 from pardem.io.progress import Progress
 from pardem.io.summary import write_json
-from pardem.engine import granular
+from pardem import restart
 from pardem.parallel.communicator import Communicator
 from pardem.protocols import granular_output as gout
 from pardem.protocols.granular_output import Every, StepLimit
@@ -237,8 +237,8 @@ class GranularDriver(ProtocolDriver):
 
     def restore(self, run):
         run.state = run.meta["protocol"]
-        return granular.restore(run.comm, run.args.restart, meta=run.meta,
-                                slab_axis=self.slab_axes.index(run.deck["run"]["slab_axis"]))
+        return restart.load_case(run.comm, run.args.restart, meta=run.meta,
+                                 slab_axis=self.slab_axes.index(run.deck["run"]["slab_axis"]))
 
     def rows(self, run):
         """The series rows so far (from the checkpoint on restart)."""

@@ -74,7 +74,7 @@ class Triaxial(GranularDriver):
         self.open_series(run)
         pc = run.deck["loading"]["confining_pressure"]
         sim = run.sim
-        run.progress.say(f"pardem {pardem.__version__} triaxial: {run.case.constants['n_elements']} spheres on "
+        run.progress.say(f"pardem {pardem.__version__} triaxial: {run.case.n_elements} spheres on "
                          f"{run.comm.size} rank(s), dt = {sim.dt:.4g} s; isotropic compression to pc = {pc:.4g} Pa; "
                          f"output {run.out}" + (f"; restarted from {run.args.restart} (step {sim.step_count}, "
                                                 f"{run.state['stage']})" if run.meta else ""))
@@ -104,7 +104,7 @@ class Triaxial(GranularDriver):
         rows = run.series.rows
         result = triaxial.summary(rows, pc) if rows else {}
         result["cements_lost_at_rebuilds"] = int(round(float(run.comm.sum(float(run.sim.contacts.lost)))))
-        return {**result, "confining_pressure": pc, "n_elements": run.case.constants["n_elements"],
+        return {**result, "confining_pressure": pc, "n_elements": run.case.n_elements,
                 "cemented_pairs": run.state["n_cem"], "preparation": run.state["prep"],
                 "preparation_seconds": run.state["preparation_seconds"],
                 "series": ["triaxial.csv", "triaxial.h5"]}

@@ -2,7 +2,7 @@
 
 ``open_axes(comm, case, axes, keep)`` gathers the state of ``case`` over the ranks (the
 communicator's ``allgather``; no raw MPI here), unwraps it into the former cell and builds a new
-case with ``pardem.engine.granular.build`` (the path of every granular case), in which the axes
+case with ``pardem.engine.system.build`` (the one builder) from the case's description, in which the axes
 ``axes`` are no longer periodic:
 
 * positions along an opened axis are brought into the former cell ``[lo, lo + L)`` (the box along
@@ -26,6 +26,7 @@ positions are the same), which ``tests/test_biaxial.py`` checks pair by pair.
 import numpy as np
 
 from pardem.engine import granular
+from pardem.engine.system import regrown
 from pardem.engine.contacts import KEY_BASE
 
 AXES = {"x": 0, "y": 1, "z": 2}
@@ -72,7 +73,7 @@ def open_axes(comm, case, axes, keep=None):
     """A new ``GranularCase`` from ``case`` with the periodic axes ``axes`` (e.g. ``("y",)`` or
     ``("x", "y")``) opened; ``keep`` an optional ``positions [n, 3] -> bool [n]`` (module
     docstring). Collective; every rank gets its slab of the new case."""
-    sim, c = case.sim, case.constants
+    sim = case.sim
     cell = sim.cell
     opened = _axis_indices(axes, cell)
     grains, pairs = gather_state(comm, sim)
@@ -102,13 +103,8 @@ def open_axes(comm, case, axes, keep=None):
              "history": np.ascontiguousarray(pairs["history"][ok])}
     periodic = cell.periodic.copy()
     periodic[opened] = False
-    dim = int(c.get("dimension", 3))
-    xs = x[kept]
-    new = granular.build(comm, xs, grains["radius"][kept], c["density"], c["law"], c["params"], lo, length,
-                         sim.dt, c["skin"], periodic=tuple(periodic), velocities=grains["v"][kept],
-                         angular_velocities=grains["w"][kept], viscous_damping=sim.viscous_damping,
-                         slab_axis=c["slab_axis"], balance_every=c["balance_every"], dimension=dim,
-                         thickness=c.get("thickness"))
+    new = granular.build_case(comm, regrown(sim, x[kept], grains["radius"][kept], grains["v"][kept],
+                                            grains["w"][kept], lo, length, periodic))
     e = new.sim.elements
     # orientations and masses by gid, on owned and ghost rows alike (build made them from radii)
     for k in ("q", "mass", "inertia"):
@@ -119,7 +115,7 @@ def open_axes(comm, case, axes, keep=None):
     # the same call build made, now with the carried history (looked up by the new gid pairs)
     new.sim.contacts.rebuild(e, new.sim.bonds, table)
     new.origin_gid = gid[kept].copy()
-    new.constants["opened"] = {"axes": ["xyz"[d] for d in opened], "n_before": int(len(gid))}
+    new.extras["opened"] = {"axes": ["xyz"[d] for d in opened], "n_before": int(len(gid))}
     return new
 
 

@@ -2,7 +2,7 @@
 
 ``replicate(comm, case, copies)`` gathers the state (``pardem.engine.open_cell.gather_state``),
 lays the copies side by side in a cell ``k_a`` times longer along each periodic axis a, and builds
-the new case with ``pardem.engine.granular.build`` (the path of every granular case):
+the new case with ``pardem.engine.system.build`` (the one builder) from the case's description:
 
 * copy ``c = (c_x, c_y, c_z)`` (row-major, ``c_index = (c_x k_y + c_y) k_z + c_z``) holds the grains
   at ``x + c L`` (``L`` the old cell edges); gids are renumbered ``c_index N + gid`` (N grains per
@@ -26,6 +26,7 @@ same separations and histories, so the same contact forces and the same (im)bala
 import numpy as np
 
 from pardem.engine import granular
+from pardem.engine.system import regrown
 from pardem.engine.open_cell import gather_state
 
 VECTOR_COLUMNS = {3: (slice(0, 3),), 9: (slice(0, 3), slice(3, 6))}   # history widths -> vector columns
@@ -47,7 +48,7 @@ def _copies(copies, cell):
 def replicate(comm, case, copies):
     """A new ``GranularCase`` of ``copies`` = ``(k_x, k_y)`` or ``(k_x, k_y, k_z)`` copies of the
     periodic ``case`` (module docstring). Collective; every rank gets its slab of the new case."""
-    sim, c = case.sim, case.constants
+    sim = case.sim
     cell = sim.cell
     k = _copies(copies, cell)
     grains, pairs = gather_state(comm, sim)
@@ -85,12 +86,8 @@ def replicate(comm, case, copies):
     table = {"gid_i": np.concatenate(new_i).astype(np.int64), "gid_j": np.concatenate(new_j).astype(np.int64),
              "history": np.ascontiguousarray(np.concatenate(new_h)) if new_h else hist}
     length = L * k
-    dim = int(c.get("dimension", 3))
-    new = granular.build(comm, xs, tile(grains["radius"]), c["density"], c["law"], c["params"], lo, length,
-                         sim.dt, c["skin"], periodic=tuple(per), velocities=tile(grains["v"]),
-                         angular_velocities=tile(grains["w"]), viscous_damping=sim.viscous_damping,
-                         slab_axis=c["slab_axis"], balance_every=c["balance_every"], dimension=dim,
-                         thickness=c.get("thickness"))
+    new = granular.build_case(comm, regrown(sim, xs, tile(grains["radius"]), tile(grains["v"]),
+                                            tile(grains["w"]), lo, length, per))
     e = new.sim.elements
     for name in ("q", "mass", "inertia"):
         getattr(e, name)[:] = tile(grains[name])[e.gid]
@@ -99,7 +96,7 @@ def replicate(comm, case, copies):
     e.refresh_rotations()
     new.sim.contacts.rebuild(e, new.sim.bonds, table)
     new.origin_gid = np.mod(np.arange(n * n_copies, dtype=np.int64), n)
-    new.constants["replicated"] = {"copies": k.tolist(), "n_original": int(n)}
+    new.extras["replicated"] = {"copies": k.tolist(), "n_original": int(n)}
     return new
 
 

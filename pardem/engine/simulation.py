@@ -109,6 +109,15 @@ class Simulation:
         self.bonds_broken_step = 0      # bonds broken by the last force call, counted on this rank
         self.pairs_freed = False        # a bond broke since the last contact list build
         self.fixes = []                 # objects with post_force(sim): loads, clamps (engine.fixes)
+        # set by the builder (pardem.engine.system.build) or the restore: the description of the
+        # system (model only, no particle arrays), the grains' density [kg/m^3], the critical
+        # step [s], the contact reach and ghost range [m]
+        self.system = None
+        self.density = None
+        self.dt_critical = None
+        self.reach = None
+        self.ghost_range = None
+        self.n_elements = None          # the global element count at the build or restore
         self.operations = []            # operations run by every ``run`` (writers, logs, ...)
 
     def compute_forces(self, with_energy=True):

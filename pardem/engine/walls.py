@@ -16,7 +16,7 @@ friction). Walls do not rotate.
 ``add_walls(sim, normals, points, ...)`` builds the set, gives the elements their wall history
 (``elements.wall_h``, [n_rows, n_walls, 3] with friction, [n_rows, 0, 3] without; it migrates with the
 elements between ranks), attaches it as ``sim.plates`` and checks ``sim.dt`` against the critical time
-step with the walls' stiffness (``pardem.engine.builders.critical_time_step``).
+step with the walls' stiffness (``pardem.engine.critical_step.critical_time_step_of``).
 
 After each step, ``walls.forces(sim.comm)`` [n_walls, 3] [N] is the total force of the elements
 **on** each wall (collective); ``walls.normal_forces(comm)`` [n_walls] its compressive part
@@ -36,6 +36,7 @@ import math
 
 import numpy as np
 
+from pardem.engine.critical_step import critical_time_step_of
 from pardem.physics import walls as wall_kernels
 
 WALL_OVERLAP_BOUND = 0.05   # Hertz walls: the critical time step holds up to this overlap / R
@@ -157,8 +158,7 @@ def add_walls(sim, normals, points, velocities=None, law="linear", check_dt=True
     w = Walls(normals, points, params, velocities, time0=sim.step_count * sim.dt)
     check_domain(sim, w)
     if check_dt:
-        from pardem.engine.builders import critical_time_step
-        dt_c = critical_time_step(sim, walls=w)
+        dt_c = critical_time_step_of(sim, walls=w)
         if not sim.dt <= dt_c:
             raise ValueError(f"sim.dt = {sim.dt:.6g} s is above the critical time step {dt_c:.6g} s with "
                              f"these walls (stiffness {w.stiffness(_max_radius(sim)):.4g} N/m): lower the "

@@ -28,13 +28,15 @@ On-disk cache: the loops are compiled with ``cache=True``. Numba keys a closure'
 pickled cell contents, and a captured Numba function pickles with a per-process id, so a loop
 closing over the law's function would compile again in every process. The loops therefore close
 over their boolean flags only and see the pair kernel as the global ``pair`` of their own globals,
-under a qualified name built from the law functions' names, compile-time constants and source
+under a qualified name built from the law functions' names, compile-time constants and code
 digests (``_name``): a law function may close over bools and numbers only. (As for every cached
 kernel, an edit of a module the law functions call, e.g. ``contact_frame``, is not seen: clear
 the ``__pycache__`` folders.)
 """
 import hashlib
+import marshal
 import re
+import sys
 import types
 from functools import lru_cache
 
@@ -336,20 +338,29 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_wid
 
 
 @lru_cache(maxsize=None)
-def _source_digest(path):
-    with open(path, "rb") as fh:
-        return hashlib.sha1(fh.read()).hexdigest()[:10]
+def _module_digest(module):
+    """A digest of the code and plain constants of ``module`` (its functions' byte code, compiled
+    or not, and its numbers and strings): an edit of any kernel the law calls changes it. Read
+    from the loaded module, not its file (the physics layer opens no file)."""
+    h = hashlib.sha1()
+    for key, value in sorted(vars(sys.modules[module]).items()):
+        code = getattr(getattr(value, "py_func", value), "__code__", None)
+        if code is not None:
+            h.update(key.encode() + marshal.dumps(code))
+        elif isinstance(value, (int, float, str, tuple)) and not key.startswith("__"):
+            h.update(f"{key}={value!r}".encode())
+    return h.hexdigest()[:10]
 
 
 def _name(*functions):
     """A file-name-safe name of Numba functions, of the constants they close over and of their
-    source files (an edited law compiles afresh instead of loading the loop of the old one)."""
+    modules' code (an edited law compiles afresh instead of loading the loop of the old one)."""
     parts = []
     for fn in functions:
         py = fn.py_func
         cells = "_".join(repr(c.cell_contents) for c in py.__closure__ or ())
         parts.append(f"{py.__module__}.{py.__qualname__.replace('.<locals>', '')}_{cells}_"
-                     f"{_source_digest(py.__code__.co_filename)}")
+                     f"{_module_digest(py.__module__)}")
     return re.sub(r"[^A-Za-z0-9_.]", "_", "__".join(parts))
 
 

@@ -77,6 +77,7 @@ from pardem.engine import fixes, granular
 from pardem.engine.contacts import KEY_BASE
 from pardem.engine.membrane_load import MembraneLoad
 from pardem.engine.open_cell import open_axes
+from pardem.engine.system import set_contact_params
 from pardem.engine.replicate import replicate
 from pardem.parallel.exact_sum import exact_sum
 from pardem.physics import hertz_mindlin as hm
@@ -238,7 +239,7 @@ def open_sample(comm, case, deck):
     y = np.concatenate([p[1] for p in parts])
     geo = {"y_bottom": yb, "y_top": yt, "halfwidth": hw, "mean_radius": R,
            "bottom": np.sort(gid[np.abs(y - yb) <= hw]).tolist(), "top": np.sort(gid[np.abs(y - yt) <= hw]).tolist(),
-           "n_before": int(opened.constants["opened"]["n_before"]), "n_grains": int(len(gid))}
+           "n_before": int(opened.extras["opened"]["n_before"]), "n_grains": int(len(gid))}
     return opened, geo
 
 
@@ -292,13 +293,13 @@ def start_loading(case, deck, geo, mem):
     """Friction on (loading contacts), loading damping, and with ``cement.enabled`` a cement on
     every contact (``pardem.engine.cement``: unstressed, rupture energies uniform in mean +-
     half-width, a function of the seed and the gid pair). Returns the number of cements (0)."""
-    granular.set_contact_params(case, loading_params(deck))
-    granular.set_viscous_damping(case, deck["loading"]["damping"])
+    set_contact_params(case.sim, loading_params(deck))
+    case.sim.viscous_damping = float(deck["loading"]["damping"])
     k = deck["cement"]
     n = 0
     if k["enabled"]:
         n = cementing.cement_contacts(case.sim, k["threshold_mean"], k["threshold_half_width"], k["seed"])
-    case.constants["cemented_pairs"] = n
+    case.extras["cemented_pairs"] = n
     return n
 
 
@@ -419,7 +420,7 @@ def sample(case, st, mem, platens, record=None):
     sap = 0.5 * (float(reac[1]) - float(reac[4])) / (width * t)
     q, s = sa - sl, 0.5 * (sa + sl)
     intact, fading = cementing.cement_counts(sim)
-    n0 = case.constants.get("cemented_pairs", 0)
+    n0 = case.extras.get("cemented_pairs", 0)
     eps_a = 1.0 - H / ref["height"]
     if record is not None and n0:
         record.update(intact_cements(sim), eps_a, sim.step_count)

@@ -8,7 +8,7 @@ vtk_every``), a series as CSV and HDF5 with units, a summary JSON and a plot.
 
 A protocol keeps its own state (stage, counters, results so far) in a JSON-friendly dict; the
 checkpoint stores it as the root attribute ``protocol`` next to the granular case
-(``pardem.engine.granular.checkpoint_payload``), and the series rows so far in ``/series``.
+(``pardem.restart.payload``), and the series rows so far in ``/series``.
 """
 import json
 import os
@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from pardem.config import DeckError, Field, auto_or, choice, number, positive, restart_differences
-from pardem.engine import granular
+from pardem import restart
 from pardem.protocols import deck_checks
 from pardem.io import checkpoint
 from pardem.io.checkpoint_writer import DECK_SECTION, CheckpointWriter
@@ -135,7 +135,7 @@ def check_restart(path, meta, deck, schema, steps, may_change, what):
 
 def payload(case, deck, state, series_rows, columns):
     """``(groups, series, attrs)`` of the case plus the protocol's state and the series so far."""
-    groups, _, attrs = granular.checkpoint_payload(case)
+    groups, _, attrs = restart.payload(case.sim, extras=case.extras)
     attrs["deck"] = deck
     attrs["protocol"] = state
     series = {k: np.asarray([r[k] for r in series_rows], dtype=np.float64) for k in columns}

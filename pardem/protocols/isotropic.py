@@ -105,6 +105,8 @@ import time
 import numpy as np
 
 from pardem.engine import granular
+from pardem.engine.system import Cell, ContactModel, Decomposition, Integration, Particles, System
+from pardem.physics.contact_laws import critical_time_step
 from pardem.config import DeckError, Field, Schema, auto_or, boolean, choice, number, number_list, positive
 from pardem.protocols import deck_checks as dc
 from pardem.physics.timestep import rayleigh_time_step
@@ -583,13 +585,15 @@ def build_gas(comm, deck):
                    aspect=s.get("aspect_ratio", 1.0))
     pos, radii, edge = comm.bcast(data)
     params = contact_params(mat, 0.0, mat["restitution"])
-    dt_c = granular.critical_time_step("hertz_mindlin", hertz_mindlin.Params(**params), radii,
+    dt_c = critical_time_step("hertz_mindlin", hertz_mindlin.Params(**params), radii,
                                        s["density"])
     dt = run["dt_fraction"] * dt_c
-    case = granular.build(comm, pos, radii, s["density"], "hertz_mindlin", params, np.zeros(3),
-                          edge, dt, skin(deck, radii),
-                          viscous_damping=deck["preparation"]["damping"],
-                          slab_axis="xyz".index(run["slab_axis"]), dimension=dim)
+    system = System(Particles(pos, radii, s["density"]), contacts=ContactModel("hertz_mindlin", params),
+                    cell=Cell(np.zeros(3), edge), dimension=dim,
+                    integration=Integration(dt=dt, viscous_damping=deck["preparation"]["damping"]),
+                    decomposition=Decomposition(slab_axis="xyz".index(run["slab_axis"]), skin=skin(deck, radii)))
+    # the run's base step, which FIRE's adaptive step leaves (a restart during the preparation reads it)
+    case = granular.build_case(comm, system, extras={"dt": dt})
     return case
 
 
@@ -611,7 +615,7 @@ def prepare(comm, deck, p0, case=None, progress=None, run=None, resume=False):
     fire = prep["relaxation"] == "fire"
     sim.viscous_damping = 0.0 if fire else prep["damping"]
     if resume:
-        dt = float(case.constants["dt"])   # the run's step (FIRE's current one is restored)
+        dt = float(case.extras["dt"])   # the run's step (FIRE's current one is restored)
         start = int(run.state["start"])
     else:
         c.history[:] = 0.0

@@ -15,7 +15,7 @@ the history), see ``linear_response``. It returns a JSON-friendly dict::
                contacts; the heterogeneity factor <fn^1/3> / <fn>^1/3 that relates them
 
 ``from_checkpoint(comm, path, material, strain)`` does the same on the state of a checkpoint
-(``pardem.engine.granular.restore``): meaningful for a checkpoint written at the end of a
+(``pardem.restart.load``): meaningful for a checkpoint written at the end of a
 preparation (the protocol's ``stage = "K"`` with no increment applied yet), approximate
 otherwise (the tangential forces of a strained state are ignored).
 
@@ -43,7 +43,7 @@ ramp, -4.0 % (mu) in one step.
 """
 import numpy as np
 
-from pardem.engine import granular
+from pardem import restart
 from pardem.physics import effective_medium as emt
 from pardem.physics import linear_response as lr
 from pardem.physics.contact_frame import pair_geometry
@@ -228,10 +228,10 @@ def compare(static, mod):
 def from_checkpoint(comm, path, material=None, strain=None):
     """``static_moduli`` of the state stored in checkpoint ``path`` (collective); ``material``
     None: the grains of the checkpoint's contact parameters (young, poisson, friction)."""
-    case = granular.restore(comm, path)
-    case.sim.compute_forces()
+    sim = restart.load(comm, path)
+    sim.compute_forces()
     if material is None:
-        prm = case.constants["params"]
+        prm = sim.system.contacts.params
         material = {"shear_modulus": prm["young"] / (2.0 * (1.0 + prm["poisson"])), "poisson": prm["poisson"],
                     "friction": prm.get("friction", 0.0)}
-    return static_moduli(case.sim, material, strain)
+    return static_moduli(sim, material, strain)

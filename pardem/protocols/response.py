@@ -89,6 +89,7 @@ from pardem.config import DeckError, Field, Schema, auto_or, boolean, choice, nu
 from pardem.engine import fixes as fx
 from pardem.engine import granular
 from pardem.engine.open_cell import open_axes
+from pardem.engine.system import set_contact_params
 from pardem.engine.replicate import replicate
 from pardem.parallel.exact_sum import exact_sum
 from pardem.physics import flamant
@@ -382,7 +383,7 @@ def make_layer(comm, case, deck, progress=None):
     if k != [1, 1]:
         case = replicate(comm, case, k)
         if progress is not None:
-            progress.say(f"replicated {k[0]} x {k[1]}: {case.constants['n_elements']} grains")
+            progress.say(f"replicated {k[0]} x {k[1]}: {case.n_elements} grains")
     cell = case.sim.cell
     lo, L = cell.lo.copy(), cell.length.copy()
     new = open_axes(comm, case, ("y",))
@@ -402,7 +403,7 @@ def make_layer(comm, case, deck, progress=None):
     if len(bottom) == 0 or len(top) == 0 or len(free) == 0:
         raise ValueError("boundary.row_thickness leaves a row or the free grains empty")
     mat = deck["material"]
-    granular.set_contact_params(new, iso.contact_params(mat, deck["load"]["friction"], 1.0))
+    set_contact_params(new.sim, iso.contact_params(mat, deck["load"]["friction"], 1.0))
     # the forces of the opened state at the run's step; the fixes added below act on them at once
     granular.continue_clock(sim, step, clock)
     geometry = {"lo": lo.tolist(), "length": L.tolist(), "row_thickness": row,

@@ -32,6 +32,9 @@ import numpy as np
 
 from pardem.engine import cement as cementing
 from pardem.engine import granular
+from pardem.engine.system import (Cell, ContactModel, Decomposition, Integration, Particles, System,
+                                  set_contact_params)
+from pardem.physics.contact_laws import critical_time_step, law_params
 from pardem.config import DeckError, Field, Schema, auto_or, boolean, choice, number, positive
 from pardem.protocols import deck_checks as dc
 from pardem.engine.periodic_cell import PeriodicCell
@@ -190,16 +193,16 @@ def contact_params(deck, friction, cemented):
 def time_step(deck):
     """``dt_fraction`` of the critical step of the cemented contacts of the smallest sphere [s]."""
     s = deck["sample"]
-    prm = granular.law_params("hertz_mindlin", contact_params(deck, 0.0, True))
+    prm = law_params("hertz_mindlin", contact_params(deck, 0.0, True))
     r_min = s["radius"] * (1.0 - s["dispersity"])
-    return deck["run"]["dt_fraction"] * granular.critical_time_step(
+    return deck["run"]["dt_fraction"] * critical_time_step(
         "hertz_mindlin", prm, np.array([r_min]), s["density"])
 
 
 def check_deck(deck):
     """ValueError for a deck that cannot run (cement reach against the skin, gas spacing)."""
     k = deck["cement"]
-    prm = granular.law_params("hertz_mindlin", contact_params(deck, 0.0, True))
+    prm = law_params("hertz_mindlin", contact_params(deck, 0.0, True))
     cementing.check(prm, k["threshold_mean"], k["threshold_half_width"],
                     skin(deck))
     sample_gas(deck)
@@ -211,11 +214,13 @@ def build(comm, deck):
     pos, radii, vel, edge = sample_gas(deck)
     pr, ld = deck["preparation"], deck["loading"]
     servo = (ld["confining_pressure"], pr["gain"], pr["max_rate"])
-    return granular.build(comm, pos, radii, deck["sample"]["density"], "hertz_mindlin",
-                          contact_params(deck, pr["friction"], False), np.zeros(3), np.full(3, edge),
-                          time_step(deck), skin(deck),
-                          servo=servo, viscous_damping=pr["viscous_damping"], velocities=vel,
-                          slab_axis=AXES.index(deck["run"]["slab_axis"]), balance_every=200)
+    system = System(Particles(pos, radii, deck["sample"]["density"], velocities=vel),
+                    contacts=ContactModel("hertz_mindlin", contact_params(deck, pr["friction"], False)),
+                    cell=Cell(np.zeros(3), np.full(3, edge), servo=servo),
+                    integration=Integration(dt=time_step(deck), viscous_damping=pr["viscous_damping"]),
+                    decomposition=Decomposition(slab_axis=AXES.index(deck["run"]["slab_axis"]), skin=skin(deck),
+                                                balance_every=200))
+    return granular.build_case(comm, system)
 
 
 def prepare(case, deck, progress=None, state=None, operations=(), stop=None):
@@ -273,12 +278,12 @@ def coordination(sim):
 
 def cement(case, deck):
     """Switch to the loading's friction and cemented contacts, remove the damping, cement every
-    contact. Returns the global number of cements (also kept in ``case.constants``)."""
+    contact. Returns the global number of cements (also kept in ``case.extras``)."""
     k = deck["cement"]
-    granular.set_contact_params(case, contact_params(deck, deck["contacts"]["friction"], True))
-    granular.set_viscous_damping(case, 0.0)
+    set_contact_params(case.sim, contact_params(deck, deck["contacts"]["friction"], True))
+    case.sim.viscous_damping = 0.0
     n = cementing.cement_contacts(case.sim, k["threshold_mean"], k["threshold_half_width"], k["seed"])
-    case.constants["cemented_pairs"] = n
+    case.extras["cemented_pairs"] = n
     return n
 
 
@@ -289,7 +294,7 @@ def start_loading(case, deck):
     sim.cell.servo = PeriodicCell.triaxial_servo(axis, -ld["strain_rate"], ld["confining_pressure"],
                                                  ld["gain"], ld["max_rate"])
     sim.cell.control(sim.stress)     # the first step already moves at the loading's rates
-    case.constants["triaxial_reference"] = {"length": sim.cell.length.tolist(), "axis": axis,
+    case.extras["triaxial_reference"] = {"length": sim.cell.length.tolist(), "axis": axis,
                                             "step": sim.step_count}
 
 
@@ -303,7 +308,7 @@ def loading_steps(case, deck):
 def sample(case):
     """One row of ``COLUMNS`` (collective)."""
     sim = case.sim
-    ref = case.constants["triaxial_reference"]
+    ref = case.extras["triaxial_reference"]
     axis = ref["axis"]
     L0 = np.asarray(ref["length"])
     L = sim.cell.length
@@ -312,7 +317,7 @@ def sample(case):
     sig_a = -float(s[axis, axis])
     sig_l = [-float(s[b, b]) for b in lat]
     intact, fading = cementing.cement_counts(sim)
-    n0 = case.constants.get("cemented_pairs", 0)
+    n0 = case.extras.get("cemented_pairs", 0)
     return {"step": sim.step_count, "time": sim.time,
             "eps_axial": 1.0 - L[axis] / L0[axis], "eps_vol": 1.0 - float(np.prod(L / L0)),
             "q": sig_a - 0.5 * (sig_l[0] + sig_l[1]), "p": -float(np.trace(s)) / 3.0,
@@ -352,7 +357,7 @@ def load(case, deck, steps=None, rows=None, operations=(), progress=None, stop=N
     step at which ``StepLimit`` ends the run early (the rows are those of the uncut run)."""
     sim = case.sim
     total = loading_steps(case, deck) if steps is None else int(steps)
-    start = case.constants["triaxial_reference"]["step"]
+    start = case.extras["triaxial_reference"]["step"]
     every = max(1, total // deck["output"]["samples"])
 
     def report(row):

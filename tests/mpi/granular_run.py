@@ -10,9 +10,16 @@ import argparse
 
 import numpy as np
 
+from pardem import restart
+
 from pardem.engine import granular
 from pardem.engine.contacts import pair_keys
 from pardem.parallel.communicator import Communicator
+import os
+import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from _util import granular_case
 
 R = 0.1e-3
 p = argparse.ArgumentParser()
@@ -30,7 +37,7 @@ a = p.parse_args()
 comm = Communicator()
 
 if a.restart:
-    case = granular.restore(comm, a.restart)
+    case = restart.load_case(comm, a.restart)
 else:
     pos, L = granular.simple_cubic(a.n, R, spacing=2.02, jitter=0.01, seed=7)
     rng = np.random.default_rng(3)
@@ -46,7 +53,7 @@ else:
     rate = (0.0, 0.0, 0.0) if a.servo else (-300.0, -200.0, -100.0)
     if a.rate is not None:
         rate = (a.rate,) * 3
-    case = granular.build(comm, pos, radii, 2500.0, a.law, params, np.zeros(3), np.full(3, L), 1e-8,
+    case = granular_case(comm, pos, radii, 2500.0, a.law, params, np.zeros(3), np.full(3, L), 1e-8,
                           0.05 * R, rate=rate, servo=servo, velocities=vel,
                           angular_velocities=omega, slab_axis=a.slab_axis, balance_every=50)
 sim = case.sim
@@ -70,7 +77,7 @@ if a.checkpoint_at:
 
         def __call__(self, s):
             if s.step_count == k:
-                granular.write(case, path)
+                restart.save(case.sim, extras=case.extras, path=path)
     ops.append(Write())
 sim.run(a.steps - sim.step_count, ops)
 

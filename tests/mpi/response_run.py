@@ -16,10 +16,19 @@ import json
 
 import numpy as np
 
+from pardem.physics.contact_laws import critical_time_step as contact_critical_time_step
+
+from pardem.physics.contact_laws import law_params
+
 from pardem.config import check_deck
 from pardem.engine import granular
 from pardem.parallel.communicator import Communicator
 from pardem.protocols import response
+import os
+import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from _util import granular_case
 
 R = 0.1e-3
 DENSITY = 2500.0
@@ -37,9 +46,9 @@ def lattice_case(comm, nx=12, ny=12, spacing=0.999):
     pos = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
     E = 2.0 * MATERIAL["shear_modulus"] * (1.0 + MATERIAL["poisson"])
     params = {"young": E, "poisson": MATERIAL["poisson"], "friction": 0.0, "restitution": 1.0}
-    dt = 0.25 * granular.critical_time_step("hertz_mindlin", granular.law_params("hertz_mindlin", params),
+    dt = 0.25 * contact_critical_time_step("hertz_mindlin", law_params("hertz_mindlin", params),
                                            np.array([R]), DENSITY)
-    case = granular.build(comm, pos, R, DENSITY, "hertz_mindlin", params, np.zeros(3), np.array([nx * a, ny * h, 0]),
+    case = granular_case(comm, pos, R, DENSITY, "hertz_mindlin", params, np.zeros(3), np.array([nx * a, ny * h, 0]),
                           dt, 0.1 * R, periodic=(True, True, False), dimension=2)
     return case, h
 

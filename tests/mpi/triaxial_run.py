@@ -11,6 +11,8 @@ import argparse
 
 import numpy as np
 
+from pardem import restart
+
 from pardem.engine import granular
 from pardem.protocols import triaxial
 from pardem.parallel.communicator import Communicator
@@ -22,7 +24,7 @@ p.add_argument("steps", type=int)
 p.add_argument("--checkpoint-at", nargs=2)
 a = p.parse_args()
 comm = Communicator()
-case = granular.restore(comm, a.checkpoint)
+case = restart.load_case(comm, a.checkpoint)
 sim = case.sim
 deck = {"output": {"samples": 20}}
 ops = []
@@ -35,7 +37,7 @@ if a.checkpoint_at:
 
         def __call__(self, s):
             if s.step_count == start + k:
-                granular.write(case, path)
+                restart.save(case.sim, extras=case.extras, path=path)
     ops.append(Write())
 rows = triaxial.load(case, deck, steps=a.steps, operations=ops)
 intact, fading = triaxial.cementing.cement_counts(sim)
