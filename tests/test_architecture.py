@@ -1,8 +1,9 @@
 """The import direction of ARCHITECTURE.md, read from the source (every import statement, also
-inside functions): drivers -> protocols -> engine (+ io, parallel) -> physics.
+inside functions): drivers -> protocols -> restart -> engine (+ io, parallel) -> physics.
 
 Each rule is a list of packages a layer must not import. The test parses the files with ``ast``,
-so an import hidden in a function body counts too.
+so an import hidden in a function body counts too; and no group of modules imports itself around
+(an import cycle), even through imports hidden in functions.
 """
 import ast
 import pathlib
@@ -17,10 +18,11 @@ FORBIDDEN = {
                 "pardem.parallel", "pardem.io", "pardem.domains", "pardem.config"],
     "domains": ["mpi4py", "h5py", "meshio", "pardem.engine", "pardem.protocols", "pardem.drivers",
                 "pardem.parallel", "pardem.io"],
-    "engine": ["mpi4py", "h5py", "meshio", "pardem.protocols", "pardem.drivers"],
+    "engine": ["mpi4py", "h5py", "meshio", "pardem.protocols", "pardem.drivers", "pardem.restart"],
     "parallel": ["h5py", "meshio", "pardem.engine.simulation", "pardem.protocols", "pardem.drivers",
                  "pardem.io"],
-    "io": ["mpi4py", "pardem.protocols", "pardem.drivers", "pardem.engine.simulation"],
+    "io": ["mpi4py", "pardem.protocols", "pardem.drivers", "pardem.engine", "pardem.restart"],
+    "restart.py": ["mpi4py", "h5py", "meshio", "pardem.protocols", "pardem.drivers"],
     "protocols": ["mpi4py", "h5py", "meshio", "pardem.drivers"],
     "drivers": ["mpi4py", "h5py"],
     "config.py": ["mpi4py", "h5py", "meshio", "pardem.engine", "pardem.protocols", "pardem.drivers",
@@ -74,3 +76,119 @@ def test_the_rules_catch_a_violation(tmp_path):
     f.write_text("def g():\n    from mpi4py import MPI\n    import h5py.h5f\n")
     names = imports(f)
     assert any(_hits(n, "mpi4py") for n in names) and any(_hits(n, "h5py") for n in names)
+
+
+def modules():
+    """Dotted module name -> file, for every module of pardem."""
+    out = {}
+    for f in ROOT.rglob("*.py"):
+        parts = list(f.relative_to(ROOT.parent).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        out[".".join(parts)] = f
+    return out
+
+
+def import_graph(mods):
+    """Module -> the pardem modules it imports (``from a.b import c`` names module ``a.b.c`` when
+    that is a module, else ``a.b``)."""
+    def owner(name):
+        while name and name not in mods:
+            name = name.rpartition(".")[0]
+        return name
+    graph = {}
+    for m, f in mods.items():
+        graph[m] = {t for t in (owner(n) for n in imports(f) if n and n.startswith("pardem")) if t and t != m}
+    return graph
+
+
+def cycles(graph):
+    """The strongly connected groups of more than one module (Tarjan), each sorted."""
+    index, low, stack, on, found = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                found.append(sorted(group))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_no_import_cycle():
+    found = cycles(import_graph(modules()))
+    assert not found, "import cycles: " + "; ".join(" -> ".join(c) for c in found)
+
+
+def test_the_cycle_check_finds_a_cycle_hidden_in_a_function():
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert cycles(graph) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+# calls that open, create, remove or list files (prefix = the module's usual import name)
+FILE_CALLS = {"open", "io.open", "os.open", "os.fdopen", "os.remove", "os.unlink", "os.rename", "os.replace",
+              "os.rmdir", "os.mkdir", "os.makedirs", "os.listdir", "os.scandir", "os.stat", "os.fsync",
+              "os.path.exists", "os.path.isfile", "os.path.isdir", "shutil.rmtree", "shutil.copy",
+              "shutil.copyfile", "shutil.move", "glob.glob", "tempfile.mkstemp", "tempfile.mkdtemp",
+              "h5py.File", "np.save", "np.savez", "np.load", "np.savetxt", "np.loadtxt", "json.dump",
+              "json.load", "tomllib.load", "meshio.write", "meshio.read"}
+FILE_METHODS = {"write_text", "read_text", "write_bytes", "read_bytes", "savefig", "touch"}
+# outside pardem/io: the drivers may create the folders of a run (nothing else)
+FOLDER_CALLS = {"drivers": {"os.makedirs"}}
+
+
+def _dotted(node):
+    if isinstance(node, ast.Name):
+        return node.id
+    if isinstance(node, ast.Attribute):
+        base = _dotted(node.value)
+        return f"{base}.{node.attr}" if base else None
+    return None
+
+
+def file_calls(path):
+    """``(line, call)`` of every call in ``path`` that touches a file."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if isinstance(node, ast.Call):
+            name = _dotted(node.func)
+            if name in FILE_CALLS or (isinstance(node.func, ast.Attribute) and node.func.attr in FILE_METHODS):
+                out.append((node.lineno, name or node.func.attr))
+    return out
+
+
+def test_only_the_io_layer_touches_files():
+    bad = []
+    for f in sorted(ROOT.rglob("*.py")):
+        layer = f.relative_to(ROOT).parts[0]
+        if layer == "io":
+            continue
+        allowed = FOLDER_CALLS.get(layer, set())
+        bad += [f"{f.relative_to(ROOT.parent)}:{line} {name}" for line, name in file_calls(f) if name not in allowed]
+    assert not bad, "file access outside pardem/io:\n" + "\n".join(bad)
+
+
+def test_the_file_check_sees_opens_and_figures(tmp_path):
+    f = tmp_path / "k.py"
+    f.write_text("import os\ndef g(fig, p):\n    with open(p) as fh:\n        pass\n    fig.savefig(p)\n"
+                 "    os.makedirs(p)\n")
+    assert sorted(n for _, n in file_calls(f)) == ["fig.savefig", "open", "os.makedirs"]

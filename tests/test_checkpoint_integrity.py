@@ -22,7 +22,7 @@ import pytest
 
 from pardem.config import DeckError
 from pardem.engine import granular
-from pardem.engine.errors import InstabilityError, OutputError
+from pardem.errors import InstabilityError, OutputError
 from pardem.io import checkpoint
 from pardem.io.checkpoint import CheckpointError, inspect, write_checkpoint
 from pardem.parallel.communicator import Communicator

@@ -10,7 +10,7 @@ from pardem.drivers import compress
 from pardem.io.series import SERIES_COLUMNS, read_series
 from pardem.parallel.communicator import Communicator
 from pardem.physics.timestep import critical_time_step, eigen_bound
-from pardem.engine.errors import InstabilityError
+from pardem.errors import InstabilityError
 from pardem.engine.simulation import Simulation
 from pardem.engine.state import Elements, Plates
 

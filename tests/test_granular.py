@@ -17,7 +17,7 @@ from pardem.engine import granular
 from pardem.engine.contacts import STRESS, pair_keys
 from pardem.parallel.communicator import Communicator
 from pardem.physics.hertz_mindlin import effective_moduli
-from pardem.engine.errors import InstabilityError
+from pardem.errors import InstabilityError
 from _util import granular_case
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")

@@ -15,7 +15,7 @@ import pytest
 
 from pardem.config import DeckError
 from pardem.drivers import cli
-from pardem.engine.errors import OutputError
+from pardem.errors import OutputError
 from pardem.io import run_folder
 from tests._util import FakeComm
 

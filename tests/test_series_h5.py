@@ -10,7 +10,7 @@ import h5py
 import numpy as np
 import pytest
 
-from pardem import plot
+from pardem.drivers import plot
 from pardem.io.series import SERIES_COLUMNS, SERIES_UNITS, SeriesCSV, read_series
 from pardem.io.series_h5 import SeriesH5, read_series_h5
 

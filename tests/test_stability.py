@@ -18,7 +18,7 @@ from pardem.config import DeckError
 from pardem.domains.ordered import ordered_lattice
 from pardem.engine import granular
 from pardem.engine.bonding import BeamMaterial, make_bonds
-from pardem.engine.errors import InstabilityError
+from pardem.errors import InstabilityError
 from pardem.engine.simulation import FaultInjection, Simulation
 from pardem.engine.state import Elements, Plates
 from pardem.io.checkpoint import ALLOW_INF, inspect

@@ -19,7 +19,7 @@ from pardem.engine.bonding import BeamMaterial, make_bonds
 from pardem.domains.ordered import ordered_lattice
 from pardem.physics import walls
 from pardem.physics.timestep import critical_time_step, eigen_bound, max_tau
-from pardem.engine.errors import InstabilityError
+from pardem.errors import InstabilityError
 from pardem.engine.simulation import Simulation
 from pardem.engine.state import Elements, Plates
 from _util import FakeComm, loads, qmul, quat

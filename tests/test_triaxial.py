@@ -17,6 +17,7 @@ from pardem import restart
 import pytest
 
 from pardem.engine import granular
+from pardem.io.series import read_series
 from pardem.protocols import triaxial
 from pardem.config import load_deck
 from pardem.drivers import triaxial as driver
@@ -279,7 +280,7 @@ def test_triaxial_servo_holds_lateral_axes_and_round_trips():
 def test_driver_short_deck_on_two_ranks(tmp_path):
     out = tmp_path / "short"
     mpirun(2, "-m", "pardem.drivers.triaxial", "--config", SHORT, "--out", out, "--quiet")
-    s = driver.read_series(out / "triaxial.csv")
+    s = read_series(out / "triaxial.csv", triaxial.COLUMNS)
     assert list(s) == list(triaxial.COLUMNS)
     summary = json.loads((out / "triaxial.json").read_text())
     assert (out / "triaxial.png").stat().st_size > 1000
@@ -400,8 +401,8 @@ def test_driver_restart_on_another_rank_count(restart_runs):
     (equal), the rest agrees to 1e-6 of pc (another rank count may sum the contact forces in
     another order, rounding 1e-16 that 721 steps of contacts amplify; measured: identical here)."""
     d, _ = restart_runs
-    a = driver.read_series(d / "full" / "triaxial.csv")
-    b = driver.read_series(d / "one_rank" / "triaxial.csv")
+    a = read_series(d / "full" / "triaxial.csv", triaxial.COLUMNS)
+    b = read_series(d / "one_rank" / "triaxial.csv", triaxial.COLUMNS)
     assert a["step"] == b["step"]
     before = [k for k, st in enumerate(a["step"]) if st <= 4000]
     for k in triaxial.COLUMNS:
@@ -419,7 +420,7 @@ def test_driver_output_files(restart_runs):
     import h5py
     d, _ = restart_runs
     out = d / "full"
-    csv = driver.read_series(out / "triaxial.csv")
+    csv = read_series(out / "triaxial.csv", triaxial.COLUMNS)
     h5 = read_series_h5(out / "triaxial.h5")
     assert list(h5) == list(triaxial.COLUMNS)
     for k in triaxial.COLUMNS:

@@ -74,10 +74,10 @@ from pardem.io.paraview import ParaViewWriter
 from pardem.io.records import RecordLog, read_study_header, start_study_folder
 from pardem.io.series import SeriesCSV, dict_row
 from pardem.io.series_h5 import SeriesH5
-from pardem.io.summary import write_json
+from pardem.io.summary import write_json, write_text
 from pardem.parallel.communicator import Communicator
-from pardem.engine.errors import DecompositionError
-from pardem.engine.errors import InstabilityError
+from pardem.errors import DecompositionError
+from pardem.errors import InstabilityError
 
 DECK_NAME = "compress_calibrated.toml"
 STRENGTH_KEYS = ("tensile_strength", "shear_strength", "densification_stress", "densification_p0")
@@ -420,8 +420,7 @@ def run(comm, args):
     if comm.is_root:
         if args.verify:
             start_study_folder(out, header, finished)
-        with open(os.path.join(out, DECK_NAME), "w") as fh:
-            fh.write(deck_text(raw, _header(targets, cal, deck, args.config)))
+        write_text(os.path.join(out, DECK_NAME), deck_text(raw, _header(targets, cal, deck, args.config)))
         b = cal
         print(f"pardem {pardem.__version__}: calibration (docs/physics.md section 6, relations "
               f"{deck['bonds']['relations']}): E^mu (L, R, T) = "
@@ -528,8 +527,7 @@ def run_compact(comm, args, deck, t_start):
                       f"{n} {100 * e:+.2f} %" for n, e in result["relative_error"].items()),
                   f"{'converged' if result['converged'] else 'NOT converged'} after {result['iterations']} "
                   f"measurement(s) (tolerance {100 * result['tolerance']:g} %); see {CALIBRATION_JSON}."]
-        with open(os.path.join(out, DECK_NAME), "w") as fh:
-            fh.write(deck_text(raw, header))
+        write_text(os.path.join(out, DECK_NAME), deck_text(raw, header))
         write_json(os.path.join(out, CALIBRATION_JSON), report)
         written = [CALIBRATION_JSON, HISTORY_NAME, DECK_NAME]
         try:

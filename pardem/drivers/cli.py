@@ -27,7 +27,7 @@ import time
 
 from pardem.config import DeckError, choice, describe, load_deck
 from pardem.engine import stop
-from pardem.engine.errors import InstabilityError, Interrupted, OutputError
+from pardem.errors import InstabilityError, Interrupted, OutputError
 from pardem.io import run_folder
 from pardem.io.records import header_difference, read_records, read_study_header
 from pardem.parallel import layout, watchdog

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import pardem
 from pardem.config import DeckError
 from pardem.drivers import cli
-from pardem.engine.errors import DecompositionError, Interrupted
+from pardem.errors import DecompositionError, Interrupted
 from pardem.engine.simulation import FaultInjection
 from pardem.io import checkpoint
 from pardem.io.checkpoint_writer import CheckpointWriter

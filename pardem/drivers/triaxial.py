@@ -27,13 +27,12 @@ checkpoint to continue from.
 Exit codes: 0 done, 1 unexpected error (all ranks stop), 2 bad input (one line naming the field),
 3 the run became unstable.
 """
-import csv
 import time
 
 import pardem
 from pardem.drivers import cli
 from pardem.drivers.runner import GranularDriver, protocol_main
-from pardem.io.figures import pyplot
+from pardem.io import triaxial_plot
 from pardem.protocols import triaxial
 
 # deck keys a restart may change besides [output] and [checkpoint] (the rest is the physics)
@@ -112,7 +111,7 @@ class Triaxial(GranularDriver):
     def finish(self, run, summary):
         rows, pc = run.series.rows, summary["confining_pressure"]
         if run.deck["output"]["plot"] and rows:
-            plot(f"{run.out}/triaxial.png", rows, pc)
+            triaxial_plot.plot(f"{run.out}/triaxial.png", rows, pc)
         if run.stopped:
             print(f"{run.stopped}; continue with --restart "
                   f"{run.writer.written[-1] if run.writer.written else '(no checkpoint: checkpoint.at_end = false)'}",
@@ -126,34 +125,6 @@ class Triaxial(GranularDriver):
                 f"{100 * summary['lateral_stress_error_mean']:.2f} %); {summary['wall_seconds']:.1f} s; "
                 f"outputs in {run.out}")
         return cli.EXIT_OK
-
-
-def read_series(path):
-    """Columns of ``triaxial.csv`` as a dict of float lists."""
-    with open(path, newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    return {k: [float(r[k]) for r in rows] for k in triaxial.COLUMNS}
-
-
-def plot(path, rows, pc):
-    plt = pyplot("triaxial.png")
-    if plt is None:
-        return
-    ea = [100 * r["eps_axial"] for r in rows]
-    fig, ax = plt.subplots(3, 1, figsize=(6, 8), sharex=True)
-    ax[0].plot(ea, [r["q"] / pc for r in rows])
-    ax[0].set_ylabel("q / pc [-]")
-    ax[1].plot(ea, [100 * r["eps_vol"] for r in rows])
-    ax[1].set_ylabel("eps_v [%] (contraction +)")
-    ax[2].plot(ea, [r["broken_fraction"] for r in rows])
-    ax[2].set_ylabel("broken cement fraction [-]")
-    ax[2].set_xlabel("axial strain [%]")
-    for a in ax:
-        a.grid(alpha=0.3)
-    ax[0].set_title(f"cemented triaxial test, pc = {pc:.3g} Pa")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ import numpy as np
 from pardem.config import DeckError
 from pardem.engine import stop
 from pardem.parallel import watchdog
-from pardem.engine.errors import InjectedFault, InstabilityError, Interrupted
+from pardem.errors import InjectedFault, InstabilityError, Interrupted
 from pardem.parallel import exact_sum
 from pardem.physics import exact_accumulate, walls
 from pardem.physics.finite import first_nonfinite

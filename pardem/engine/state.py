@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 from numba import njit
 
+from pardem.physics.bond_state import BOND_BROKEN_SHEAR, BOND_BROKEN_TENSION, BOND_INTACT  # noqa: F401
 from pardem.physics.quaternion import quat_to_matrix_into
 
 # Per-element arrays that travel with an element when it migrates (f, t and rot are recomputed).
@@ -24,8 +25,6 @@ BOND_FIELDS = ("gid", "gid_i", "gid_j", "L0", "ka", "kb", "kt", "tau_a", "tau_b"
                "u1", "p1", "u2", "p2", "young", "radius", "state", "f_tensile", "f_shear", "f_yield",
                "plastic", "rot_damping")
 
-# Bond states (``Bonds.state``).
-BOND_INTACT, BOND_BROKEN_TENSION, BOND_BROKEN_SHEAR = np.uint8(0), np.uint8(1), np.uint8(2)
 
 # Element flag bits.
 FLAG_NEAR_PLATE = np.uint8(1)   # touches a plate at the start: left out of the strain fit

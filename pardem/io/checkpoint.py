@@ -55,7 +55,7 @@ import numpy as np
 
 import pardem
 from pardem.config import DeckError
-from pardem.engine.errors import InstabilityError, OutputError
+from pardem.errors import InstabilityError, OutputError
 from pardem.physics.finite import first_nonfinite
 
 LAYOUT_VERSION = 2

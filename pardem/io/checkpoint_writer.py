@@ -9,7 +9,7 @@ import os
 import time
 
 from pardem.config import Field, boolean, choice, number
-from pardem.engine.errors import OutputError
+from pardem.errors import OutputError
 from pardem.io import checkpoint
 
 # the deck's [checkpoint] section of every driver that checkpoints: the writer's settings

@@ -55,7 +55,7 @@ import sys
 import meshio
 import numpy as np
 
-from pardem.engine.state import BOND_INTACT
+from pardem.physics.bond_state import BOND_INTACT
 from pardem.physics.beam_axial import elastic_axial_force
 
 PVD_NAME = "pardem.pvd"

@@ -14,7 +14,7 @@ import os
 import shutil
 
 from pardem.config import DeckError
-from pardem.engine.errors import OutputError
+from pardem.errors import OutputError
 
 LOCK_NAME = ".pardem.lock"
 # every file or folder a pardem driver writes into its output folder (a run's results)

@@ -1,4 +1,5 @@
-"""The run summary as JSON, written atomically (temporary name, then rename)."""
+"""The run summary as JSON, and other text files of a run (a written deck), each written
+atomically (temporary name, then rename)."""
 import json
 import os
 
@@ -24,4 +25,12 @@ def write_json(path, data):
     with open(tmp, "w") as fh:
         json.dump(_plain(data), fh, indent=2, allow_nan=False)
         fh.write("\n")
+    os.replace(tmp, path)
+
+
+def write_text(path, text):
+    """Write ``text`` to ``path`` atomically (a deck the calibration wrote, ...)."""
+    tmp = f"{path}.tmp"
+    with open(tmp, "w") as fh:
+        fh.write(text)
     os.replace(tmp, path)

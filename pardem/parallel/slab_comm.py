@@ -44,7 +44,7 @@ from numba import njit
 
 from pardem.parallel.slabs import Slabs, imbalance
 from pardem.physics.neighbours import max_displacement2
-from pardem.engine.errors import DecompositionError, InstabilityError
+from pardem.errors import DecompositionError, InstabilityError
 from pardem.engine.state import Bonds, Elements
 
 _TAG_FORWARD, _TAG_EXCHANGE, _TAG_BORDERS = 71, 72, 73

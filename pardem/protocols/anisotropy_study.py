@@ -66,7 +66,7 @@ from pardem.protocols.compression import SeriesSampler, build_case, measure, wit
 from pardem.config import DeckError, check_deck, raw_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.domains.compact import compact_packing
-from pardem.engine.errors import InstabilityError
+from pardem.errors import InstabilityError
 
 LAWS = ("TOR", "hankinson", "linear", "spherical")      # W's four laws: the study's default
 ALL_LAWS = LAWS + ("spherical_normalised",)             # --laws may also pick the normalised variant

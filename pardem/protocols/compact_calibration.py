@@ -68,7 +68,7 @@ import numpy as np
 
 from pardem.config import DeckError, check_deck
 from pardem.domains import compact
-from pardem.engine.errors import InstabilityError
+from pardem.errors import InstabilityError
 from pardem.engine.state import FLAG_NEAR_PLATE
 from pardem.physics import anisotropy
 from pardem.physics.beam import compute_bonds

@@ -10,7 +10,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from test_checkpoint_integrity import _payload  # noqa: E402
 
-from pardem.engine.errors import OutputError  # noqa: E402
+from pardem.errors import OutputError  # noqa: E402
 from pardem.io.checkpoint import write_checkpoint  # noqa: E402
 from pardem.parallel.communicator import Communicator  # noqa: E402
 

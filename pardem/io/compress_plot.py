@@ -1,67 +1,49 @@
-"""Force-strain plot of a compression run.
-
-    python -m pardem.plot DIR [--out FILE.png]
-
-Reads ``DIR/series.csv`` (or ``DIR/series.h5`` when there is no CSV) and ``DIR/summary.json`` and
-writes ``DIR/force_strain.png``: axial stress against axial strain (left) and the lateral strains
-against the axial strain (right). Needs matplotlib (``pip install 'pardem[plot]'``).
-"""
-import argparse
+"""The compress run's figure (``force_strain.png``): axial stress against axial strain and the
+lateral strains, from the run folder's ``series.csv`` (or ``series.h5``) and ``summary.json``.
+Needs matplotlib (optional). The command is ``python -m pardem.drivers.plot``."""
 import json
 import math
 import os
-import sys
 
 import numpy as np
 
-from pardem.drivers.cli import EXIT_OK, fail_usage
+from pardem.io.series import read_series
+from pardem.io.series_h5 import read_series_h5
 
 SUMMARY_KEYS = ("cross_section", "loading_axis")
 
 
-def parser():
-    p = argparse.ArgumentParser(
-        prog="python -m pardem.plot", description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="reads DIR/series.csv (or DIR/series.h5) and DIR/summary.json of a compress run\n\n"
-               "exit codes: 0 ok, 1 unexpected error, 2 bad input or matplotlib missing")
-    p.add_argument("dir", metavar="DIR", help="output directory of a compress run")
-    p.add_argument("--out", metavar="FILE.png", help="image to write (default: DIR/force_strain.png)")
-    return p
-
-
 def load_run(directory):
-    """(series as a dict of float arrays, summary dict) of a run directory; SystemExit(2) if unusable."""
+    """(series as a dict of float arrays, summary dict) of a run directory; ValueError (one line)
+    if unusable."""
     if not os.path.isdir(directory):
-        fail_usage(None, f"{directory}: no such directory: expected the output directory of a compress run")
+        raise ValueError(f"{directory}: no such directory: expected the output directory of a compress run")
     summary_path = os.path.join(directory, "summary.json")
     try:
         with open(summary_path) as fh:
             summary = json.load(fh)
     except FileNotFoundError:
-        fail_usage(None, f"{summary_path} not found: expected the output directory of a compress run")
+        raise ValueError(f"{summary_path} not found: expected the output directory of a compress run") from None
     except (OSError, ValueError) as err:
-        fail_usage(None, f"{summary_path}: cannot read it as JSON ({err})")
+        raise ValueError(f"{summary_path}: cannot read it as JSON ({err})") from None
     missing = [k for k in SUMMARY_KEYS if k not in summary]
     if missing or summary.get("loading_axis") not in ("x", "y", "z"):
-        fail_usage(None, f"{summary_path} lacks {', '.join(missing) or 'a loading_axis x, y or z'}: "
+        raise ValueError(f"{summary_path} lacks {', '.join(missing) or 'a loading_axis x, y or z'}: "
                          f"expected the summary of a compress run")
     csv_path, h5_path = os.path.join(directory, "series.csv"), os.path.join(directory, "series.h5")
     try:
         if os.path.exists(csv_path):
-            from pardem.io.series import read_series
             path, raw = csv_path, read_series(csv_path)
         elif os.path.exists(h5_path):
-            from pardem.io.series_h5 import read_series_h5
             path, raw = h5_path, read_series_h5(h5_path)
         else:
-            fail_usage(None, f"{directory} holds neither series.csv nor series.h5: "
+            raise ValueError(f"{directory} holds neither series.csv nor series.h5: "
                              f"expected the output directory of a compress run")
     except (OSError, ValueError, KeyError) as err:
-        fail_usage(None, f"cannot read the series in {directory}: {err}")
+        raise ValueError(f"cannot read the series in {directory}: {err}") from None
     series = {k: np.asarray(v, dtype=np.float64) for k, v in raw.items()}
     if len(series["time"]) == 0:
-        fail_usage(None, f"{path} holds no samples")
+        raise ValueError(f"{path} holds no samples")
     return series, summary
 
 
@@ -118,25 +100,3 @@ def plot(series, summary, out):
     fig.suptitle(f"compression along {a}: measured E_{a} = {_mpa(summary.get('young_modulus'))} "
                  f"(quasi-static slope), {n_ranks} rank{'s' if n_ranks != 1 else ''}")
     fig.savefig(out, dpi=110)
-
-
-def main(argv=None):
-    args = parser().parse_args(argv)
-    series, summary = load_run(args.dir)
-    out = args.out or os.path.join(args.dir, "force_strain.png")
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        fail_usage(None, "matplotlib is not installed: pip install 'pardem[plot]'")
-    try:
-        plot(series, summary, out)
-    except OSError as err:
-        fail_usage(None, f"cannot write {out}: {err.strerror or err}")
-    except ValueError as err:      # e.g. an image format matplotlib does not know
-        fail_usage(None, f"cannot write {out}: {err}")
-    print(f"wrote {out}")
-    return EXIT_OK
-
-
-if __name__ == "__main__":
-    sys.exit(main())
