@@ -17,7 +17,6 @@ import numpy as np
 from pardem import restart
 import pytest
 
-from pardem.engine import granular
 from pardem.protocols import isotropic
 from pardem.engine.open_cell import open_axes
 from pardem.parallel.communicator import Communicator

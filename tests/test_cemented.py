@@ -316,7 +316,6 @@ def test_contact_forces_count_cemented_pairs_apart_and_fading_as_the_kernel_appl
     (intact cement in tension, sliding sideways) and the last pair's cement set fading: the end
     spheres have one pair each, so the kernel's total force on them is that pair's force.
     Tolerance: round-off of the two groupings of the same terms (1e-12 of the force)."""
-    from pardem.engine import granular
     from pardem.parallel.communicator import Communicator
     from pardem.protocols import isotropic
     overlap = 1e-7

@@ -21,7 +21,6 @@ from pardem import restart
 import pytest
 
 from pardem.config import DeckError
-from pardem.engine import granular
 from pardem.errors import InstabilityError, OutputError
 from pardem.io import checkpoint
 from pardem.io.checkpoint import CheckpointError, inspect, write_checkpoint

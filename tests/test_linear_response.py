@@ -288,7 +288,6 @@ def test_moduli_check_on_a_checkpoint_on_two_ranks(packing, tmp_path):
     import shutil
     import subprocess
     import sys
-    from pardem.engine import granular
     path = tmp_path / "prepared.h5"
     restart.save(packing["case"].sim, extras=packing["case"].extras, path=str(path))
     e = packing["strain"]
@@ -316,7 +315,6 @@ def test_moduli_check_on_a_checkpoint_on_two_ranks(packing, tmp_path):
 def prepared_files(packing, tmp_path_factory):
     """Checkpoints of the prepared packings (restored fresh for every measurement): the 3D
     fixture's, and a 2D one (100 spheres in the plane z = 0, FIRE, 1 MPa)."""
-    from pardem.engine import granular
     d = tmp_path_factory.mktemp("prepared")
     restart.save(packing["case"].sim, extras=packing["case"].extras, path=str(d / "p3.h5"))
     deck2 = load_deck(iso.SCHEMA, SMALL, ["sample.n=100", f"preparation.pressures=[{P0}]", "domain.dimension=2",
@@ -380,7 +378,6 @@ def measure(path, deck, dim, friction, ramp):
     packing of checkpoint ``path`` with ``friction`` and ``ramp`` steps per increment, the static
     ones of the same state (``moduli_check.static_moduli``, as the sweep computes them), the
     residual errors of every relaxed state and the mode measures."""
-    from pardem.engine import granular
     case = restart.load_case(Communicator(), path)
     sim = case.sim
     sim.compute_forces()

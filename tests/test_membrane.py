@@ -227,7 +227,6 @@ R = D / 2
 def sample_case(comm, seed=5, slot=None, nx=60, ny=50):
     """``random_sample`` (spacing 2.4 R: no contacts) as a 2D open case (slabs along x): the
     case, positions [n, 2] in gid order, platen masks and the MembraneLoad (r_m = 1.5 spacings)."""
-    from pardem.engine import granular
     from pardem.engine.membrane_load import MembraneLoad
     a = 2.4 * R
     x, bottom, top, _ = random_sample(nx, ny, a, seed, 0.12, 0.1, slot)

@@ -28,7 +28,6 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from pardem.engine import granular
 from pardem.engine.replicate import replicate
 from pardem.parallel.communicator import Communicator
 from pardem.physics import flamant as fl

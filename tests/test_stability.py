@@ -16,7 +16,6 @@ import pytest
 
 from pardem.config import DeckError
 from pardem.domains.ordered import ordered_lattice
-from pardem.engine import granular
 from pardem.engine.bonding import BeamMaterial, make_bonds
 from pardem.errors import InstabilityError
 from pardem.engine.simulation import FaultInjection, Simulation

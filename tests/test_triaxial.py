@@ -16,7 +16,6 @@ import numpy as np
 from pardem import restart
 import pytest
 
-from pardem.engine import granular
 from pardem.io.series import read_series
 from pardem.protocols import triaxial
 from pardem.config import load_deck

@@ -25,7 +25,7 @@ from pardem import restart
 import pytest
 
 import pardem
-from pardem.engine import fixes, granular
+from pardem.engine import fixes
 from pardem.engine.plane import PlaneConstraint, check_dimension, dimension_of
 from pardem.engine.periodic_cell import PeriodicCell
 from pardem.io.paraview import ParaViewWriter, piece_mesh

@@ -27,7 +27,7 @@ from pardem import restart
 import pytest
 
 import pardem
-from pardem.engine import cement, fixes, granular
+from pardem.engine import cement, fixes
 from pardem.engine.plane import PlaneConstraint, plane_of
 from pardem.engine.system import set_contact_params
 from pardem.engine.walls import add_walls

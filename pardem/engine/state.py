@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 from numba import njit
 
-from pardem.physics.bond_state import BOND_BROKEN_SHEAR, BOND_BROKEN_TENSION, BOND_INTACT  # noqa: F401
+from pardem.physics.bond_state import BOND_BROKEN_SHEAR, BOND_BROKEN_TENSION, BOND_INTACT  # noqa: F401 (the names of Bonds.state)
 from pardem.physics.quaternion import quat_to_matrix_into
 
 # Per-element arrays that travel with an element when it migrates (f, t and rot are recomputed).

@@ -38,6 +38,7 @@ from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs, choose_axis
 from pardem.physics import walls as wall_kernels
 from pardem.physics.contact_laws import LAWS, critical_time_step, law_params
+from pardem.physics.contact_laws import law as contact_law
 
 GHOST_STRETCH = 1.25   # bonds may stretch by 25 % before they outgrow the ghost layer
 SKIN_RADII = 0.2       # default skin [mean radii]
@@ -63,9 +64,12 @@ class Particles:
 class ContactModel:
     """Element-element contacts: ``law`` a name of ``pardem.physics.contact_laws.LAWS``
     (``"hertz_mindlin"``, ``"linear"``), ``params`` its parameters (dict of the law's ``Params``
-    keywords, SI units)."""
+    keywords, SI units). ``resolve``: instead of ``params``, a function ``(comm, elements, bonds) ->
+    params`` called once by the builder after the bonds are made, for parameters derived from them
+    (a deck's "auto" contact modulus: the bonds' largest); the built system holds its result."""
     law: str = "hertz_mindlin"
     params: dict = field(default_factory=dict)
+    resolve: object = None
 
     def law_params(self):
         """The validated ``Params`` of the law."""
@@ -150,13 +154,16 @@ class Decomposition:
 
     slab_axis : 0, 1, 2 or "auto" (the longest extent); skin [m] : neighbour-list and ghost skin
     (None: 0.2 mean radius); balance_every [steps] : load-balance checks (0: never);
-    balance_threshold : relative imbalance that moves the cuts; balance_by : "count" or "time".
+    balance_threshold : relative imbalance that moves the cuts; balance_by : "count" or "time";
+    initial_split : "balanced" (equal counts) or the fractions of the elements below each of the
+    ``ranks - 1`` first cuts.
     """
     slab_axis: object = "auto"
     skin: float = None
     balance_every: int = 0
     balance_threshold: float = 0.05
     balance_by: str = "count"
+    initial_split: object = "balanced"
 
 
 @dataclass
@@ -350,10 +357,17 @@ def build(comm, system):
         raise ValueError("System.bonds with a periodic Cell: bonds across a periodic boundary are not "
                          "supported; expected a cell without periodic axes, or no bonds")
     prm = None
-    if system.contacts is not None:
-        if not isinstance(system.contacts, ContactModel):
-            raise ValueError(f"System.contacts must be a ContactModel, got {type(system.contacts).__name__}")
-        prm = system.contacts.law_params()
+    model = system.contacts
+    if model is not None:
+        if not isinstance(model, ContactModel):
+            raise ValueError(f"System.contacts must be a ContactModel, got {type(model).__name__}")
+        if model.resolve is None:
+            prm = model.law_params()
+        elif not callable(model.resolve):
+            raise ValueError(f"ContactModel.resolve must be a function (comm, elements, bonds) -> params, "
+                             f"got {type(model.resolve).__name__}")
+        else:
+            contact_law(model.law)    # a known law, before any work
     _check_integration(integ)
     skin = SKIN_RADII * float(r.mean()) if dec.skin is None else dec.skin
     if not (isinstance(skin, (int, float, np.floating)) and math.isfinite(skin) and skin > 0.0):
@@ -365,12 +379,18 @@ def build(comm, system):
     reach = 2.0 * float(r.max()) + skin
     L0_max = float(np.linalg.norm(x[pairs[:, 1]] - x[pairs[:, 0]], axis=1).max()) if len(pairs) else 0.0
     ghost_range = GHOST_STRETCH * L0_max + skin
-    if prm is not None:
+    if model is not None:
         ghost_range = max(ghost_range, reach)
+    split = dec.initial_split
+    if not (isinstance(split, str) and split == "balanced"):
+        if len(split) != comm.size - 1:
+            raise ValueError(f"Decomposition.initial_split has {len(split)} fractions: expected {comm.size - 1} "
+                             f"(one per cut between {comm.size} ranks) or \"balanced\"")
 
     if comm.size > 1:
         stripe = slice(comm.rank, None, comm.size)
-        slabs = Slabs.balanced(comm, slab_axis, x[stripe, slab_axis], gids[stripe])
+        slabs = Slabs.balanced(comm, slab_axis, x[stripe, slab_axis], gids[stripe],
+                               fractions=None if isinstance(split, str) else split)
         owned = slabs.owner(x[:, slab_axis], gids) == comm.rank
     else:
         owned = np.ones(n, bool)
@@ -394,8 +414,11 @@ def build(comm, system):
     else:
         bonds = Bonds.empty()
     contacts = None
-    if prm is not None:
-        contacts = Contacts(LAWS[system.contacts.law], prm, skin, cell, reach=reach)
+    if model is not None:
+        if model.resolve is not None:
+            model = ContactModel(model.law, dict(model.resolve(comm, elements, bonds)))
+            prm = model.law_params()
+        contacts = Contacts(LAWS[model.law], prm, skin, cell, reach=reach)
 
     domain = None
     if comm.size > 1:
@@ -424,7 +447,7 @@ def build(comm, system):
         if not isinstance(w, WallModel):
             raise ValueError(f"System.walls must be a WallModel, got {type(w).__name__}")
         w.exact(add_walls(sim, w.normals, w.points, w.velocities, law=w.law, check_dt=False)).move_to(0.0)
-    dt_c = critical_time_step_of(sim, contacts_of=(system.contacts, r, density))
+    dt_c = critical_time_step_of(sim, contacts_of=(model, r, density))
     if integ.dt is None:
         if not math.isfinite(dt_c):
             raise ValueError("Integration.dt: nothing in this system is stiff (no bond, wall or contact): "
@@ -439,7 +462,7 @@ def build(comm, system):
     sim.dt = dt
     sim.dt_critical = float(dt_c)
     sim.density = density
-    sim.system = replace(system, particles=None,
+    sim.system = replace(system, particles=None, contacts=model,
                          bonds=None if system.bonds is None else replace(system.bonds, pairs=None),
                          integration=replace(integ, dt=dt),
                          decomposition=replace(dec, skin=skin, slab_axis=int(slab_axis)),

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-from pardem.engine.bonding import BeamMaterial, make_bonds
+from pardem.engine.bonding import BeamMaterial
 from pardem.config import DeckError, check_deck, raw_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA, physics_differences, upgrade
 from pardem.engine import snapshot
@@ -21,12 +21,13 @@ from pardem.physics.contact_laws import LAWS as CONTACT_LAWS
 from pardem.physics.contact_laws import critical_time_step as contact_critical_time_step
 from pardem.physics.contact_laws import law_params
 from pardem.parallel.slab_comm import SlabComm
-from pardem.parallel.slabs import Slabs, choose_axis
+from pardem.parallel.slabs import choose_axis
 from pardem.physics import beam_static, walls
 from pardem.physics.anisotropy import lrt_frame
 from pardem.physics.timestep import critical_time_step, eigen_bound, max_tau
 from pardem.engine.reducer import STRAIN_SUMS, Reducer, gradient_from_sums, strain_sums, young_and_poisson
 from pardem.engine.simulation import Simulation
+from pardem.engine.system import BondModel, ContactModel, Decomposition, Particles, System, build
 from pardem.engine.state import FLAG_NEAR_PLATE, Bonds, Elements, Plates
 
 NEAR_PLATE_GAP = 0.5   # elements closer than this many radii to a plate at the start: not in the strain fit
@@ -141,10 +142,6 @@ def build_case(comm, deck, steps=None, packing=None, plates=True):
         raise DeckError(f"domain.box = {list(dom['box'])} holds only {len(pos)} elements of radius "
                         f"{R}: expected a box at least 2 diameters wide along each axis")
     n_global = len(pos)
-    gids = np.arange(n_global, dtype=np.int64)
-    pairs = np.sort(pairs, axis=1)
-    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
-    bond_gids = np.arange(len(pairs), dtype=np.int64)
     low = float(lower[axis])
     high = float(upper[axis])
     near_plate = np.minimum(pos[:, axis] - radii - low, high - pos[:, axis] - radii) < NEAR_PLATE_GAP * R
@@ -154,40 +151,34 @@ def build_case(comm, deck, steps=None, packing=None, plates=True):
                         f"3 dimensions, so the strain cannot be fitted: expected at least 2 element layers "
                         f"across every axis and 3 along the loading axis {ld['axis']}")
 
-    # slabs: cuts from a distributed bisection over a stripe of the elements per rank
-    slab_axis = choose_axis(extent, avoid=axis) if par["slab_axis"] == "auto" else "xyz".index(par["slab_axis"])
-    split = par["initial_split"]
-    if split != "balanced" and len(split) != comm.size - 1:
-        raise DeckError(f"parallel.initial_split has {len(split)} fractions: expected {comm.size - 1} "
-                        f"(one per cut between {comm.size} ranks) or \"balanced\"")
-    stripe = slice(comm.rank, None, comm.size)
-    slabs = Slabs.balanced(comm, slab_axis, pos[stripe, slab_axis], gids[stripe],
-                           fractions=None if split == "balanced" else split)
-    owned = slabs.owner(pos[:, slab_axis], gids) == comm.rank
-    touch = owned[pairs[:, 0]] | owned[pairs[:, 1]]
-    partners = np.setdiff1d(pairs[touch].ravel(), np.nonzero(owned)[0])
-    rows = np.concatenate([np.nonzero(owned)[0], partners])
-    local_row = np.full(n_global, -1, dtype=np.int64)
-    local_row[rows] = np.arange(len(rows))
-    elements = Elements.from_spheres(pos[rows], radii[rows], dom["density"], gids[rows])
-    elements.n_owned = int(owned.sum())
-    elements.flags[near_plate[rows]] |= FLAG_NEAR_PLATE
     material = BeamMaterial(young=bd["young"], radius_ratio=bd["radius_ratio"],
                             poisson=bd["poisson"], damping=bd["damping"], law=bd["law"],
                             tensile_strength=bd["tensile_strength"], shear_strength=bd["shear_strength"],
                             densification_stress=bd["densification_stress"],
                             densification_p0=bd["densification_p0"])
-    bonds = make_bonds(elements, local_row[pairs[touch]], material, frame, gids=bond_gids[touch])
-
+    slab_axis = choose_axis(extent, avoid=axis) if par["slab_axis"] == "auto" else "xyz".index(par["slab_axis"])
+    split = par["initial_split"]
+    if split != "balanced" and len(split) != comm.size - 1:
+        raise DeckError(f"parallel.initial_split has {len(split)} fractions: expected {comm.size - 1} "
+                        f"(one per cut between {comm.size} ranks) or \"balanced\"")
     skin = 0.2 * R if run["skin"] == "auto" else run["skin"]
-    contact_law, contact_params = _contact_law(comm, deck, bonds, elements, material)
-    reach = 2.0 * float(radii.max()) + skin
-    ghost_range = GHOST_STRETCH * comm.max(float(bonds.L0.max()) if bonds.n else 0.0) + skin
+    contact_law = _contact_law_name(deck, material)
+    contacts = None
     if contact_law != "none":
-        ghost_range = max(ghost_range, reach)
-    domain = _slab_comm(comm, slabs, ghost_range, skin, par)
-    contacts = _contacts(contact_law, contact_params, skin, reach)
-    elements, bonds = _setup(domain, contacts, elements, bonds)
+        contacts = ContactModel(contact_law, resolve=lambda c, e, b: _contact_params(c, deck, contact_law, b, e))
+    # the one builder: slabs from a distributed bisection over a stripe of the elements per rank,
+    # each rank's elements and the bonds that touch them, ghosts, the contact list; the plates and
+    # the time step (bounded with the plates) are this protocol's
+    sim = build(comm, System(Particles(pos, radii, dom["density"]), contacts=contacts,
+                             bonds=BondModel(material, pairs, frame),
+                             decomposition=Decomposition(slab_axis=slab_axis, skin=skin,
+                                                         balance_every=par["balance_every"],
+                                                         balance_threshold=par["balance_threshold"],
+                                                         balance_by=par["balance_by"], initial_split=split)))
+    elements, bonds, domain, contacts = sim.elements, sim.bonds, sim.domain, sim.contacts
+    elements.flags[near_plate[elements.gid]] |= FLAG_NEAR_PLATE
+    contact_params = sim.system.contacts.params if contacts is not None else {}
+    reach, ghost_range = sim.reach, sim.ghost_range
 
     k_plate = _global_mean_axial_stiffness(comm, bonds, elements) if deck["plates"]["stiffness"] == "auto" \
         else deck["plates"]["stiffness"]
@@ -276,18 +267,20 @@ def with_plate_speed(case, speed):
     return _assemble(sim.comm, deck, sim.elements, sim.bonds, sim.domain, c, None, contacts=sim.contacts)
 
 
-def _contact_law(comm, deck, bonds, elements, material):
-    """(law name, params dict) of the deck's element-element contacts ("none", {} when off)."""
-    ct = deck["contacts"]
-    law = ct["law"]
+def _contact_law_name(deck, material):
+    """The deck's element-element contact law: a name of ``CONTACT_LAWS`` or "none"."""
+    law = deck["contacts"]["law"]
     if law == "auto":
         law = "hertz_mindlin" if material.breakable else "none"
-    if law not in CONTACT_LAWS:
-        return "none", {}
-    # the deck's "auto" values, computed (collectively) only when the law asks for them
+    return law if law in CONTACT_LAWS else "none"
+
+
+def _contact_params(comm, deck, law, bonds, elements):
+    """The params dict of the deck's contacts; its "auto" values computed (collectively) from the
+    bonds only when the law asks for them."""
     auto = {"young": lambda: comm.max(float(bonds.young.max()) if bonds.n else 0.0),
             "stiffness": lambda: _global_mean_axial_stiffness(comm, bonds, elements)}
-    return law, CONTACT_LAWS[law].deck_params(ct, auto)
+    return CONTACT_LAWS[law].deck_params(deck["contacts"], auto)
 
 
 def _contacts(law, params, skin, reach):

@@ -21,7 +21,6 @@ from pardem.physics.contact_laws import critical_time_step as contact_critical_t
 from pardem.physics.contact_laws import law_params
 
 from pardem.config import check_deck
-from pardem.engine import granular
 from pardem.parallel.communicator import Communicator
 from pardem.protocols import response
 import os

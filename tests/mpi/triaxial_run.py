@@ -13,7 +13,6 @@ import numpy as np
 
 from pardem import restart
 
-from pardem.engine import granular
 from pardem.protocols import triaxial
 from pardem.parallel.communicator import Communicator
 
