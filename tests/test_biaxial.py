@@ -355,7 +355,7 @@ def test_cemented_sample_starts_unstressed_and_counts_its_cements():
     cements; their intact count can only fall and the broken fraction stays in [0, 1]."""
     plain = biaxial_hex(Communicator(), settle=0, steps=200)[0]
     rows, case, *_ = biaxial_hex(Communicator(), settle=0, steps=200, cement=True)
-    n0 = case.constants["cemented_pairs"]
+    n0 = case.extras["cemented_pairs"]
     assert n0 > 0 and rows[0]["cements_intact"] == n0
     for k in ("sigma_axial", "sigma_lateral", "q"):
         assert rows[0][k] == plain[0][k], k
@@ -413,7 +413,7 @@ def test_cemented_hexagonal_sample_breaks_cements_and_records_when():
     rows, case, *_ = biaxial_hex(Communicator(), settle=200, steps=2000, every=100, record=record,
                                  cement=True, loading={"strain_rate": 50.0, "strain": 1e-3})
     rec = record[0]
-    n0 = case.constants["cemented_pairs"]
+    n0 = case.extras["cemented_pairs"]
     assert len(rec.initial) == n0 > 300
     broken = [r["cements_broken"] for r in rows]
     assert all(a <= b for a, b in zip(broken, broken[1:]))

@@ -307,8 +307,8 @@ def test_replicated_packing_has_the_original_contact_forces():
     sim = case.sim
     assert np.max(np.abs(sim.contacts.history)) > 0.0   # tangential history to copy
     big = replicate(comm, case, (2, 3))
-    n = case.constants["n_elements"]
-    assert big.constants["n_elements"] == 6 * n
+    n = case.n_elements
+    assert big.n_elements == 6 * n
     assert np.allclose(big.sim.cell.length[:2], sim.cell.length[:2] * [2, 3], rtol=1e-15)
     a, b = response.contact_table(sim), response.contact_table(big.sim)
     assert len(b["gid_i"]) == 6 * len(a["gid_i"])

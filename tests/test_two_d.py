@@ -291,7 +291,7 @@ def test_restart_continues_bit_for_bit_in_2d(tmp_path):
     path = str(tmp_path / "two_d.h5")
     restart.save(case.sim, extras=case.extras, path=path)
     back = restart.load_case(Communicator(), path)
-    assert back.constants["dimension"] == 2 and back.sim.cell.dimension == 2
+    assert back.sim.system.dimension == 2 and back.sim.cell.dimension == 2
     assert isinstance(back.sim.fixes[-1], PlaneConstraint)
     back.sim.run(300)
     a, b = by_gid(ref.sim), by_gid(back.sim)

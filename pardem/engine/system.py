@@ -476,7 +476,7 @@ def build(comm, system):
 def _particle_arrays(p, dim):
     """Centres [n, 3], radii [n], density of ``p``, checked."""
     if dim == 2:
-        x = planar(np.asarray(p.positions, "Particles.positions"), "Particles.positions")
+        x = planar(p.positions, "Particles.positions")
     else:
         x = p.positions
     x = _positions(x, "Particles.positions")

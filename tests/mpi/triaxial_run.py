@@ -29,7 +29,7 @@ deck = {"output": {"samples": 20}}
 ops = []
 if a.checkpoint_at:
     k, path = int(a.checkpoint_at[0]), a.checkpoint_at[1]
-    start = case.constants["triaxial_reference"]["step"]
+    start = case.extras["triaxial_reference"]["step"]
 
     class Write:
         every = 1
