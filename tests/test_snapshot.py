@@ -87,17 +87,26 @@ def test_save_load_continues_bit_for_bit_on_one_rank(tmp_path):
     assert np.array_equal(ref.elements.wall_h[:ref.elements.n_owned], back.elements.wall_h[:back.elements.n_owned])
 
 
-def test_load_refuses_a_protocol_checkpoint(tmp_path):
+def test_one_restore_reads_a_protocol_case_and_its_extras(tmp_path):
+    """A granular case saved with its protocol's facts is read back by the one restore: ``load``
+    gives its simulation (continuing bit for bit), ``load_case`` also its extras."""
     from pardem.engine import granular
-    from pardem.io.checkpoint import CheckpointError
     comm = pardem.Communicator()
     pos, L = granular.simple_cubic(3, 1e-3)
     case = granular_case(comm, pos, 1e-3, 2500.0, "linear", {"kn": 1e3, "kt": 1e3, "friction": 0.3},
-                          [0, 0, 0], [L, L, L], 1e-6, 1e-4)
+                          [0, 0, 0], [L, L, L], 1e-6, 1e-4, velocities=np.full((27, 3), 1e-3))
+    case.extras["cemented_pairs"] = 7
+    case.sim.run(20)
     path = str(tmp_path / "g.h5")
     restart.save(case.sim, extras=case.extras, path=path)
-    with pytest.raises(CheckpointError, match="not a checkpoint of a pardem System"):
-        pardem.load(comm, path)
+    sim = pardem.load(comm, path)
+    back = restart.load_case(comm, path)
+    assert back.extras == {"cemented_pairs": 7}
+    for s in (case.sim, sim, back.sim):
+        s.run(30)
+    for k in ("x", "v", "w", "f"):
+        assert np.array_equal(getattr(case.sim.elements, k), getattr(sim.elements, k)), k
+        assert np.array_equal(getattr(case.sim.elements, k), getattr(back.sim.elements, k)), k
 
 
 @pytest.mark.mpi
