@@ -42,8 +42,8 @@ and the verb's name: two integer increments and one store), and every slot also 
 count and, in text, where the rank is (the collective and its callers in pardem and in the script,
 or the line it runs outside any collective, from a sample of the main thread's stack taken by the
 watchdog thread once per round, nothing on the calling side). When one rank has stayed in the same
-collective call for the limit (``wait_for_all`` excepted: a task farm's rank done early waits there
-by design), the job is aborted with one line (from one rank) naming the collective, its callers and
+collective call for the limit while another rank is not in that collective (``wait_for_all``
+excepted: a task farm's rank done early waits there by design), the job is aborted with one line (from one rank) naming the collective, its callers and
 what every other rank does, e.g.
 
     pardem: error: watchdog: rank 0 has waited 120 s in Communicator.sum called from
@@ -278,7 +278,10 @@ class Watchdog:
             return None     # a rank is falling silent: its verdict follows, it explains the stall
         if self.script and calls is not None:
             inside = [r for r in watched if calls[r] % 2 == 1]
-            if any(now - calls_at[r] > t and not idle[r] for r in inside):
+            # every rank in the same verb is a long collective, not ranks waiting for each other
+            # (a silent rank has its own verdict above)
+            together = len(inside) == self.comm.size and len({self._where[r].split(" ")[0] for r in inside}) == 1
+            if not together and any(now - calls_at[r] > t and not idle[r] for r in inside):
                 return ([], inside), self._stuck_message(now, state, calls, calls_at)
             if any(not idle[r] for r in inside):
                 return None     # a rank waits in a collective: that verdict, if any, names it
@@ -319,12 +322,7 @@ class Watchdog:
             else:
                 parts.append(f"{_ranks(ranks)} {text}")
         kinds = {kind for kind, _ in groups}
-        if kinds != {"inside"}:
-            why = "a collective called on some ranks only"
-        elif len(groups) > 1:
-            why = "the ranks are in different collectives"
-        else:
-            why = "a collective that does not complete"
+        why = "a collective called on some ranks only" if kinds != {"inside"} else "the ranks are in different collectives"
         return (f"pardem: error: watchdog: {'; '.join(parts)} ({why}? limit {self.timeout:g} s, "
                 f"set by {ENV} or pardem.parallel.watchdog.configure, 0 = off); aborting all ranks")
 
