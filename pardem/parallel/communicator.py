@@ -2,6 +2,12 @@
 
 Everything above this layer calls these verbs and never mpi4py directly, so a run on one process
 without ``mpiexec`` works the same way (MPI singleton).
+
+Every blocking verb on more than one rank (the collectives and ``waitall``) marks this process as
+inside it in ``watchdog.COLLECTIVE`` (its name, and a call count that is odd while inside: two
+integer increments and one store per call), and the first ``Communicator`` of ``COMM_WORLD`` on
+several ranks starts the script watchdog (``watchdog.protect_script``): a collective entered by
+some ranks only ends the job with one line naming it and where every rank is.
 """
 import os
 import sys
@@ -11,10 +17,14 @@ import traceback
 
 import numpy as np
 
+from pardem.parallel import watchdog
 
 ABORT_GRACE_SECONDS = 1.0
 FOLLOW_SECONDS = 5.0       # exit_now: another rank ends the job this long after a signal rank 0 did not act on
 IDLE_POLL_SECONDS = 0.05    # wait_for_all's sleep between polls: 50 ms late at most, for cases of minutes
+
+
+_AT = watchdog.COLLECTIVE      # this process's collective in progress (read by the watchdog thread)
 
 
 class Communicator:
@@ -26,6 +36,8 @@ class Communicator:
         self.comm = MPI.COMM_WORLD if comm is None else comm
         self.rank = self.comm.Get_rank()
         self.size = self.comm.Get_size()
+        if self.size > 1 and self.comm == MPI.COMM_WORLD:
+            watchdog.protect_script(self)
 
     @property
     def is_root(self) -> bool:
@@ -33,32 +45,54 @@ class Communicator:
 
     def sum(self, values):
         """Element-wise sum over ranks of a float64 array (or scalar); same result on every rank."""
-        return self._allreduce(values, self._MPI.SUM)
+        return self._allreduce(values, self._MPI.SUM, "Communicator.sum")
 
     def max_array(self, values):
         """Element-wise maximum over ranks of a float64 array; same result on every rank."""
-        return self._allreduce(values, self._MPI.MAX)
+        return self._allreduce(values, self._MPI.MAX, "Communicator.max_array")
 
-    def _allreduce(self, values, op):
+    def _allreduce(self, values, op, name):
         a = np.array(values, dtype=np.float64)   # a copy, C-contiguous, 0-d for a scalar
         if self.size == 1:
             return a
         out = np.empty_like(a)
-        self.comm.Allreduce(a, out, op=op)
+        at = _AT
+        at.name = name
+        at.calls += 1
+        try:
+            self.comm.Allreduce(a, out, op=op)
+        finally:
+            at.calls += 1
         return out
 
+    def _collective(self, name, call, *args, **kwargs):
+        """``call(*args, **kwargs)`` marked in ``watchdog.COLLECTIVE`` as this rank's collective ``name``."""
+        at = _AT
+        at.name = name
+        at.calls += 1
+        try:
+            return call(*args, **kwargs)
+        finally:
+            at.calls += 1
+
     def min(self, value):
-        return self.comm.allreduce(value, op=self._MPI.MIN) if self.size > 1 else value
+        if self.size == 1:
+            return value
+        return self._collective("Communicator.min", self.comm.allreduce, value, op=self._MPI.MIN)
 
     def max(self, value):
-        return self.comm.allreduce(value, op=self._MPI.MAX) if self.size > 1 else value
+        if self.size == 1:
+            return value
+        return self._collective("Communicator.max", self.comm.allreduce, value, op=self._MPI.MAX)
 
     def any(self, flag: bool) -> bool:
-        return bool(self.comm.allreduce(bool(flag), op=self._MPI.LOR)) if self.size > 1 else bool(flag)
+        if self.size == 1:
+            return bool(flag)
+        return bool(self._collective("Communicator.any", self.comm.allreduce, bool(flag), op=self._MPI.LOR))
 
     def allgather(self, obj):
         """List of every rank's ``obj`` (pickled; for small metadata)."""
-        return self.comm.allgather(obj) if self.size > 1 else [obj]
+        return self._collective("Communicator.allgather", self.comm.allgather, obj) if self.size > 1 else [obj]
 
     def allgatherv(self, values):
         """Every rank's rows of ``values`` (a float64 or int64 array [n_rank, ...], the trailing
@@ -70,6 +104,9 @@ class Communicator:
                             "or int64 array with a first (row) axis")
         if self.size == 1:
             return a.copy()
+        return self._collective("Communicator.allgatherv", self._allgatherv, a)
+
+    def _allgatherv(self, a):
         tail = a.shape[1:]
         width = int(np.prod(tail, dtype=np.int64))
         meta = np.empty((self.size, 2 + len(tail)), dtype=np.int64)
@@ -85,14 +122,25 @@ class Communicator:
 
     def gather(self, obj, root=0):
         """List of every rank's ``obj`` on ``root`` (None elsewhere)."""
-        return self.comm.gather(obj, root=root) if self.size > 1 else [obj]
+        return self._collective("Communicator.gather", self.comm.gather, obj, root=root) if self.size > 1 else [obj]
 
     def bcast(self, obj, root=0):
-        return self.comm.bcast(obj, root=root) if self.size > 1 else obj
+        return self._collective("Communicator.bcast", self.comm.bcast, obj, root=root) if self.size > 1 else obj
 
     def waitall(self, requests):
         """Complete non-blocking point-to-point requests (``Isend``/``Irecv`` of ``self.comm``)."""
-        self._MPI.Request.Waitall(requests)
+        if self.size == 1:
+            self._MPI.Request.Waitall(requests)
+            return
+        # not a collective, but it waits on the neighbours' matching calls all the same (the halo
+        # exchange of every step: marked inline, the cheapest form)
+        at = _AT
+        at.name = "Communicator.waitall"
+        at.calls += 1
+        try:
+            self._MPI.Request.Waitall(requests)
+        finally:
+            at.calls += 1
 
     def split_self(self):
         """A communicator of this rank alone (independent cases of a task farm)."""
@@ -100,7 +148,7 @@ class Communicator:
 
     def barrier(self):
         if self.size > 1:
-            self.comm.Barrier()
+            self._collective("Communicator.barrier", self.comm.Barrier)
 
     def wait_for_all(self, poll_seconds=IDLE_POLL_SECONDS):
         """Collective: return once every rank has called it, sleeping between ``Test`` polls of an
@@ -111,6 +159,9 @@ class Communicator:
         meanwhile ends the job through ``abort`` (``MPI_Abort``), which kills the waiting ranks too."""
         if self.size == 1:
             return
+        self._collective("Communicator.wait_for_all", self._idle_barrier, poll_seconds)
+
+    def _idle_barrier(self, poll_seconds):
         request = self.comm.Ibarrier()
         while not request.Test():
             time.sleep(poll_seconds)
@@ -123,7 +174,9 @@ class Communicator:
         under srun an ``MPI_Abort`` is reported as "Killed" (137), and in a step that Slurm is
         already cancelling it does nothing until Slurm's SIGKILL (``KillWait``, 30 s)."""
         mine = srun_task(self.rank, self.size)
-        return bool(self.comm.allreduce(mine, op=self._MPI.LAND)) if self.size > 1 else mine
+        if self.size == 1:
+            return mine
+        return bool(self._collective("Communicator.started_by_srun", self.comm.allreduce, mine, op=self._MPI.LAND))
 
     def abort(self, code=1):
         """End every rank of the job now (used when one rank fails and the others may be waiting).
