@@ -61,11 +61,13 @@ def thread_round():
 
 def gran(n, steps):
     from pardem.engine import granular
+    from pardem.engine.system import Cell, ContactModel, Decomposition, Integration, Particles, System, build
     R, params = 0.1e-3, {"young": 72e9, "poisson": 0.2, "friction": 0.5}     # bench_gran.py's case
     comm = Communicator()
     pos, side = granular.simple_cubic(n, R, spacing=1.998, jitter=0.0002, seed=12345)
-    sim = granular.build(comm, pos, R, 2500.0, "hertz_mindlin", params, np.zeros(3), np.full(3, side),
-                         1e-8, 0.1 * R).sim
+    sim = build(comm, System(Particles(pos, R, 2500.0), contacts=ContactModel("hertz_mindlin", params),
+                             cell=Cell(np.zeros(3), np.full(3, side)), integration=Integration(dt=1e-8),
+                             decomposition=Decomposition(slab_axis=0, skin=0.1 * R)))
     sim.run(100)
     comm.barrier()
     calls0, t0 = watchdog.COLLECTIVE.calls, time.perf_counter()

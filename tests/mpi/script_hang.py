@@ -29,9 +29,10 @@ def main():
     R, n = 1e-3, 4
     grid = (np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) * 2.5 * R
     v = np.random.default_rng(1).normal(0.0, 0.05, grid.shape)
-    sim = pardem.granular_system(comm, grid, R, 2500.0, "linear",
-                                 {"kn": 1e4, "kt": 1e4, "friction": 0.3, "restitution": 0.8},
-                                 box_lo=[0.0, 0.0, 0.0], box_length=[n * 2.5 * R] * 3, velocities=v)
+    law = pardem.ContactModel("linear", {"kn": 1e4, "kt": 1e4, "friction": 0.3, "restitution": 0.8})
+    sim = pardem.build(comm, pardem.System(pardem.Particles(grid, R, 2500.0, velocities=v), contacts=law,
+                                           cell=pardem.Cell([0.0, 0.0, 0.0], [n * 2.5 * R] * 3),
+                                           integration=pardem.Integration(dt_fraction=0.2)))
     sim.run(steps)
     if comm.is_root:
         print(f"ran {sim.step_count} steps", flush=True)
