@@ -34,6 +34,7 @@ import pytest
 from numba import njit
 
 from pardem.physics import hertz_mindlin as hm
+from pardem.physics import hertz_mindlin_rolling as hmr
 from pardem.physics import linear_contact as lc
 from pardem.physics.verlet import kick, kick_drift
 from pardem.physics.viscous_damping import damp_elements
@@ -677,6 +678,9 @@ def _registry_models():
                           hm.Params(YOUNG, NU, friction=0.4, restitution=0.6, **cement)],
         "linear": [lc.Params(kn=3e5, kt=1e5, friction=0.4),
                    lc.Params(kn=3e5, kt=1e5, friction=0.4, restitution=0.6)],
+        "hertz_mindlin_rolling": [hmr.Params(YOUNG, NU, rolling_friction=0.1, friction=0.4),
+                                  hmr.Params(YOUNG, NU, rolling_friction=0.1, friction=0.4,
+                                             restitution=0.6, rolling_stiffness=1e-3)],
     }
 
 

@@ -30,11 +30,12 @@ from typing import Protocol
 
 import numpy as np
 
-from pardem.physics import hertz_mindlin, linear_contact
+from pardem.physics import hertz_mindlin, hertz_mindlin_rolling, linear_contact
 
 LAWS = {
     "hertz_mindlin": hertz_mindlin,
     "linear": linear_contact,
+    "hertz_mindlin_rolling": hertz_mindlin_rolling,
 }
 
 cement_time_step = hertz_mindlin.cement_time_step
