@@ -70,6 +70,7 @@ _EXPORTS = {
     "Log": ("pardem.io.log", "Log"),
     "ParaViewWriter": ("pardem.io.paraview", "ParaViewWriter"),
     "CheckpointWriter": ("pardem.io.checkpoint_writer", "CheckpointWriter"),
+    "ContactWriter": ("pardem.io.contact_writer", "ContactWriter"),
     "energies": ("pardem.io.log", "energies"),
     "critical_time_step": ("pardem.engine.critical_step", "critical_time_step_of"),
     # checkpoints
