@@ -64,8 +64,7 @@ class Particles:
 class ContactModel:
     """Element-element contacts: ``law`` a name of ``pardem.physics.contact_laws.LAWS``
     (``"hertz_mindlin"``, ``"linear"``, ``"hertz_mindlin_rolling"``), ``params`` its parameters
-    (dict of the law's ``Params``
-    keywords, SI units). ``resolve``: instead of ``params``, a function ``(comm, elements, bonds) ->
+    (dict of the law's ``Params`` keywords, SI units). ``resolve``: instead of ``params``, a function ``(comm, elements, bonds) ->
     params`` called once by the builder after the bonds are made, for parameters derived from them
     (a deck's "auto" contact modulus: the bonds' largest); the built system holds its result."""
     law: str = "hertz_mindlin"
