@@ -19,7 +19,7 @@ import numpy as np
 
 from pardem.engine.contacts import pair_keys
 from pardem.engine.periodic_cell import PeriodicCell
-from pardem.engine.state import Bonds, Elements, Plates
+from pardem.engine.state import PROPERTY_PREFIX, Bonds, Elements, Plates
 from pardem.io import checkpoint
 from pardem.io.checkpoint import BOND_DATASETS, CONTACT_DATASETS, ELEMENT_DATASETS
 from pardem.parallel.slabs import Slabs
@@ -40,6 +40,8 @@ def payload(sim, attrs=None):
         elements["x_build"] = e.x[:n]
     if e.wall_h.shape[1]:
         elements["wall_h"] = e.wall_h[:n]
+    # custom per-particle arrays (``sim.particles.add_property``), under their pack names
+    elements.update({PROPERTY_PREFIX + k: a[:n] for k, a in e.properties.items()})
     if b is None:
         b = Bonds.empty()
     once = b.counted_once(n)
@@ -107,6 +109,7 @@ def read(comm, path, meta, slab_axis, contacts=None, slab_comm=None, bond_option
     """
     same = int(meta["n_ranks"]) == comm.size and int(slab_axis) == int(meta["slab_axis"])
     names = list(ELEMENT_DATASETS) + (["wall_h"] if checkpoint.has_dataset(path, "elements/wall_h") else [])
+    names += checkpoint.property_datasets(path)    # custom per-particle arrays: Elements.unpack takes them
     if same:
         counts = np.asarray(meta["owned_counts"], dtype=np.int64)
         off = int(counts[:comm.rank].sum())
