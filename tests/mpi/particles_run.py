@@ -166,6 +166,7 @@ same_everywhere("rest_wall_force", rest.plates.force)
 same_everywhere("rest_wall_normal_force", rest.plates.normal_force)
 same_everywhere("rest_wall_forces_collective", rest.plates.forces(comm))
 same_everywhere("rest_masses", rest.particles.masses)
+out.update(rest_C=2.0 * omega, rest_dt=rest.dt, rest_z=xs[:, 2])
 
 # -- a driven row against viscous drag: the drive's reaction is the drag ------------------------
 C, V = 50.0, np.array([0.3, -0.2, 0.1])
