@@ -138,15 +138,21 @@ def test_set_positions_and_velocities_then_run_equals_the_built_system(comm):
     """Before the first run: bit for bit the system built with those values (the MPI script
     checks it on 2 ranks, and after a run)."""
     a, pos0 = gas(comm, seed=7)
-    b_pos, _ = granular.simple_cubic(4, R, spacing=2.1, jitter=0.02, seed=8)
+    b_pos, L = granular.simple_cubic(4, R, spacing=2.1, jitter=0.02, seed=8)
+    # squeezed about the centre (spacing 2.0 R: pairs in contact from the first force evaluation)
+    # and shuffled (every element elsewhere): a stale contact list would miss them
+    b_pos = 0.5 * L + (b_pos - 0.5 * L) * (2.0 / 2.1)
+    b_pos = b_pos[np.random.default_rng(2).permutation(len(b_pos))]
     v = np.random.default_rng(1).normal(0.0, 5.0, b_pos.shape)
     a.particles.set("positions", b_pos)
     a.particles.set("velocities", v)
     a.run(300)
-    b, _ = gas(comm, seed=8, velocities=v)
+    b = pardem.granular_system(comm, b_pos, R, 2500.0, "hertz_mindlin", HM, np.zeros(3), np.full(3, L),
+                               dt=1e-8, velocities=v)
     b.run(300)
     for name in ("positions", "velocities", "angular_velocities", "forces", "torques"):
         assert np.array_equal(a.particles.get(name), b.particles.get(name)), name
+    assert b.contacts.n_touching > 0
 
 
 def test_set_velocities_after_a_run_recomputes_the_forces(comm):

@@ -234,9 +234,12 @@ class Particles:
           (``compute_forces``, fixes included) for the first half kick, and the global wall forces
           and reactions with them. Before the first run (step 0) ``run`` computes them anyway, so a
           state set then is exactly (bit for bit) the state a builder given these values makes.
-          After a run the contact and wall tangential springs keep their stored state (a force
-          evaluation also advances them by one increment: it is undone), the bond states are those
-          of the recomputed forces;
+          After a run the contact and wall tangential springs keep their stored state (by gid
+          pair): the increment the recomputation adds to them is undone, so that repeated sets
+          do not load them again, and a pair first touching at the set starts its spring at the
+          next step (a built system starts it at the first evaluation: frictional states set
+          after a run are not bitwise a built system's); the bond states are those of the
+          recomputed forces;
         * custom properties: nothing else (no kernel reads them).
 
         The strain-fit reference ``x0`` is left as it was.

@@ -50,6 +50,10 @@ def owners(sim):
 R = 0.1e-3
 pos0, L = granular.simple_cubic(5, R, spacing=2.1, jitter=0.02, seed=7)
 pos1, _ = granular.simple_cubic(5, R, spacing=2.1, jitter=0.02, seed=8)
+# squeezed about the centre (spacing 2.0 R: pairs in contact at once) and shuffled (every element
+# elsewhere: it migrates at the set)
+pos1 = 0.5 * L + (pos1 - 0.5 * L) * (2.0 / 2.1)
+pos1 = pos1[np.random.default_rng(2).permutation(len(pos1))]
 rng = np.random.default_rng(3)
 V1 = rng.normal(0.0, 3.0, pos1.shape) + np.array([40.0, 0.0, 0.0])    # drift across the slabs (x)
 W1 = rng.normal(0.0, 3e4, pos1.shape)
@@ -111,9 +115,10 @@ for name, values in (("positions", pos1), ("velocities", V1), ("angular_velociti
     c.particles.set(name, values)
 same_everywhere("late_forces_at_set", c.particles.forces)
 c.run(STEPS)
+d0 = gas(pos1, FRICTIONLESS, velocities=V1, angular_velocities=W1)
+d0.run(0)      # a system of its own: a second run from step 0 would add the initial forces again
+same_everywhere("fresh_forces_at_start", d0.particles.forces)
 d = gas(pos1, FRICTIONLESS, velocities=V1, angular_velocities=W1)
-d.run(0)
-same_everywhere("fresh_forces_at_start", d.particles.forces)
 d.run(STEPS)
 for name in ("positions", "velocities", "angular_velocities", "orientations", "forces"):
     same_everywhere(f"late_{name}", c.particles.get(name))
