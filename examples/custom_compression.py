@@ -27,11 +27,8 @@ TOLERANCE = 0.01
 
 
 def layer_mean_z(sim, gids):
-    """Mean z [m] of the elements of global ids ``gids`` (collective)."""
-    e = sim.elements
-    mine = np.isin(e.gid[:e.n_owned], gids)
-    s = sim.comm.sum([e.x[:e.n_owned][mine, 2].sum(), mine.sum()])
-    return float(s[0] / s[1])
+    """Mean z [m] of the elements of global ids ``gids`` (read by gid on every rank; collective)."""
+    return float(sim.particles.get("positions", gids)[:, 2].mean())
 
 
 def main(argv=None):
@@ -70,7 +67,7 @@ def main(argv=None):
     log = pardem.Log(every=steps)              # thermo line (rank 0 prints), every 10th sample
     for i in range(n_samples):
         sim.run(steps, operations=[log] if (i + 1) % 10 == 0 else [])
-        f = walls.normal_forces(comm)            # compressive force on each wall [N]
+        f = walls.normal_force                   # compressive force on each wall [N], end of this run
         strain.append(1.0 - (layer_mean_z(sim, top) - layer_mean_z(sim, bottom)) / gap0)
         stress.append(0.5 * (f[0] + f[1]) / area)
     strain, stress = np.array(strain), np.array(stress)

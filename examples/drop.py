@@ -25,12 +25,10 @@ import numpy as np
 import pardem
 
 
-def owned_value(sim, gid, field, axis):
-    """``elements.<field>[row of gid, axis]`` on every rank (collective)."""
-    e = sim.elements
-    rows = np.nonzero(e.gid[:e.n_owned] == gid)[0]
-    val = float(getattr(e, field)[rows[0], axis]) if len(rows) else 0.0
-    return float(sim.comm.sum(val))
+def vertical(sim, name):
+    """The z component of the sphere's (gid 0) ``name`` (``sim.particles``: "positions" [m],
+    "velocities" [m/s]), on every rank (collective)."""
+    return float(sim.particles.get(name, [0])[0, 2])
 
 
 def main(argv=None):
@@ -58,13 +56,13 @@ def main(argv=None):
     sim.run(max(0, int(t_hit / sim.dt) - 3))
     v_in = v_out = None
     for _ in range(100000):
-        v_before = owned_value(sim, 0, "v", 2)
+        v_before = vertical(sim, "velocities")
         sim.run(1)
-        z = owned_value(sim, 0, "x", 2)
+        z = vertical(sim, "positions")
         if v_in is None and z < R:
             v_in = v_before                               # last velocity before the contact
         elif v_in is not None and z >= R:
-            v_out = owned_value(sim, 0, "v", 2)           # first velocity after it
+            v_out = vertical(sim, "velocities")           # first velocity after it
             break
     if v_out is None:
         raise SystemExit("the sphere did not leave the wall")

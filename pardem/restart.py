@@ -134,6 +134,7 @@ def read(comm, path, meta, slab_axis, contacts=None, slab_comm=None, bond_option
     """
     same = int(meta["n_ranks"]) == comm.size and int(slab_axis) == int(meta["slab_axis"])
     names = list(ELEMENT_DATASETS) + (["wall_h"] if checkpoint.has_dataset(path, "elements/wall_h") else [])
+    names += checkpoint.property_datasets(path)    # custom per-particle arrays: Elements.unpack takes them
     if same:
         counts = np.asarray(meta["owned_counts"], dtype=np.int64)
         off = int(counts[:comm.rank].sum())

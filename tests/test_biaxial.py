@@ -488,7 +488,7 @@ def test_membrane_biaxial_run_is_bitwise_equal_on_1_and_2_ranks(tmp_path):
 
 def test_restart_of_the_loading_continues_bit_for_bit(tmp_path):
     """A checkpoint in the loading (the driver's payload: case, membrane state) restored with
-    ``granular.restore`` and ``biaxial.install(restored=True)`` continues as the uninterrupted run."""
+    ``restart.load_case`` and ``biaxial.install(restored=True)`` continues as the uninterrupted run."""
     from pardem.io import checkpoint
     from pardem.protocols import biaxial
     from pardem.protocols import granular_output as gout

@@ -13,7 +13,7 @@ Oracles:
   ``F* = sqrt(2 Sn E_th)`` (``pardem.engine.cement.tensile_strength``);
 * the same run on 1 and 2 ranks (slabs along x and along y): equal bits for the grains, the contact
   history and the cement counts; the wall totals to the round-off of their sum;
-* the uninterrupted run: a restart (``granular.write``/``restore``, ``pardem.save``/``load``, walls included)
+* the uninterrupted run: a restart (``pardem.save``/``load``, walls included)
   continues bit for bit, cement state and wall history included.
 """
 import os
@@ -256,7 +256,7 @@ def test_walls_out_of_the_plane_or_across_a_periodic_axis_are_refused():
 
 @pytest.mark.parametrize("writer", ["api", "granular"])
 def test_restart_with_walls_in_2d_continues_bit_for_bit(tmp_path, writer):
-    """``pardem.save``/``load`` and ``granular.write``/``restore`` of the pressed 2D packing (wall
+    """``pardem.save``/``load`` and ``restart.save``/``load_case`` of the pressed 2D packing (wall
     friction history, the moving wall's clock, the plane constraint): 700 + 700 steps equal the
     uninterrupted 1400."""
     ref, wr = pressed_packing(2)
@@ -417,7 +417,7 @@ def test_2d_cement_on_1_and_2_ranks_is_the_same_bits(tmp_path, axis):
 
 
 def test_restart_of_a_cemented_2d_packing_continues_bit_for_bit(tmp_path):
-    """``granular.write``/``restore`` (the triaxial protocol's checkpoint) after cementation and
+    """``restart.save``/``load_case`` (the triaxial protocol's checkpoint) after cementation and
     part of the stretching: the cemented parameters, every cement's state (delta0, threshold,
     fading factor, tangential force) and the cell come back; 1000 + 1000 steps equal the
     uninterrupted 2000."""

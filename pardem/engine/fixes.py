@@ -29,6 +29,14 @@ Usage::
     add(sim, Gravity(), Clamp(gids=[0]), ExternalForce(gids=[9], force=(0, 0, -1.0)))
     # sim.fixes is now [Gravity, ExternalForce, Clamp]
 
+Reactions: ``Clamp`` and ``PrescribedVelocity`` keep the force (torque) they removed at the last
+force evaluation in two forms: ``reaction`` [3] [N] and ``reaction_torque`` [3] [N m], this rank's
+share (the sum over the chosen elements it owns: zero on a rank that owns none), and
+``global_reaction``, ``global_reaction_torque`` [3], the totals over all ranks, the same on every
+rank, as of the last step after which an operation ran or the end of the last ``sim.run`` (one
+allreduce with the walls' forces, ``pardem.engine.particles.reduce_globals``): a script reads those
+on any rank without a collective.
+
 Units: SI (N, N m, m/s, rad/s, m/s^2).
 """
 import weakref
@@ -228,9 +236,9 @@ class Clamp:
     rotations : rotations held, likewise (default all three). The force (torque) and velocity
     (angular velocity) components of the held DOFs are zeroed every step, so with velocity Verlet the
     held coordinates of the position stay bitwise the same (and the orientation, when all rotations
-    are held). The reaction of the clamp is the force it removed: ``self.reaction`` [3] [N] and
-    ``self.reaction_torque`` [3] [N m], this rank's sum over its clamped elements at the last step
-    (``sim.comm.sum`` them for the total, collectively).
+    are held). The reaction of the clamp is the force it removed: ``self.global_reaction`` [3] [N]
+    and ``self.global_reaction_torque`` [3] [N m], the totals on every rank (module docstring);
+    ``self.reaction``, ``self.reaction_torque``: this rank's share at the last step.
     """
     stage = CONSTRAINT
 
@@ -240,6 +248,7 @@ class Clamp:
         self.rotations = _dof_mask(rotations, "rotations")
         self.reaction = np.zeros(3)
         self.reaction_torque = np.zeros(3)
+        self.global_reaction, self.global_reaction_torque = np.zeros(3), np.zeros(3)
 
     def post_force(self, sim):
         e = sim.elements
@@ -269,9 +278,10 @@ class PrescribedVelocity:
     components imposed (axes among ``"xyz"``, default all); rotations : the angular velocity
     components imposed (default all when ``angular_velocity`` is given, none otherwise). Each step the
     imposed components of ``v`` (``w``) are set and those of ``f`` (``t``) zeroed, so the element
-    moves by exactly ``dt * velocity`` per step on those axes. ``self.reaction`` [3] [N]: this rank's
-    sum of the force removed (the force the drive exerts), last step. ``self.velocity`` may be changed
-    between runs.
+    moves by exactly ``dt * velocity`` per step on those axes. ``self.global_reaction`` [3] [N] and
+    ``self.global_reaction_torque`` [3] [N m]: the force and torque removed (the load the drive
+    exerts), totals on every rank (module docstring); ``self.reaction``, ``self.reaction_torque``:
+    this rank's share at the last step. ``self.velocity`` may be changed between runs.
     """
     stage = CONSTRAINT
 
@@ -289,15 +299,19 @@ class PrescribedVelocity:
             raise ValueError(f"rotations = {rotations!r} needs angular_velocity (shape (3,) or ({k}, 3) "
                              f"[rad/s])")
         self.reaction = np.zeros(3)
+        self.reaction_torque = np.zeros(3)
+        self.global_reaction, self.global_reaction_torque = np.zeros(3), np.zeros(3)
 
     def post_force(self, sim):
         e = sim.elements
         rows, idx = self.selection.rows(e, sim.comm)
         if len(rows) == 0:
             self.reaction[:] = 0.0
+            self.reaction_torque[:] = 0.0
             return
         d = np.nonzero(self.dofs)[0]
         self.reaction[:] = 0.0
+        self.reaction_torque[:] = 0.0
         if len(d):
             sub = np.ix_(rows, d)
             self.reaction[d] = -e.f[sub].sum(axis=0)
@@ -306,6 +320,7 @@ class PrescribedVelocity:
         r = np.nonzero(self.rotations)[0]
         if len(r):
             sub = np.ix_(rows, r)
+            self.reaction_torque[r] = -e.t[sub].sum(axis=0)
             e.t[sub] = 0.0
             e.w[sub] = self.angular_velocity[np.ix_(idx, r)]
 

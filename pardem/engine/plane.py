@@ -1,6 +1,6 @@
 """The 2D mode: spheres whose centres stay in the plane z = 0 (LAMMPS' ``fix enforce2d``).
 
-``[domain] dimension = 2`` of the granular decks (``pardem.engine.granular.build(dimension=2)``):
+``[domain] dimension = 2`` of the granular decks (``System(dimension=2)``, ``pardem.engine.system``):
 full spheres (mass ``4/3 pi rho R^3``, inertia ``2/5 m R^2``) with 3D contact laws, translating
 in x, y and rotating about z only. The integrator and the contact kernels are the 3D ones; the
 constraint is a fix (``PlaneConstraint``, stage ``CONSTRAINT`` of ``pardem.engine.fixes``) that

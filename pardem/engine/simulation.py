@@ -19,6 +19,7 @@ from pardem.config import DeckError
 from pardem.engine import stop
 from pardem.parallel import watchdog
 from pardem.errors import InjectedFault, InstabilityError, Interrupted
+from pardem.engine.particles import Particles, reduce_globals
 from pardem.parallel import exact_sum
 from pardem.physics import exact_accumulate, walls
 from pardem.physics.finite import first_nonfinite
@@ -119,6 +120,22 @@ class Simulation:
         self.ghost_range = None
         self.n_elements = None          # the global element count at the build or restore
         self.operations = []            # operations run by every ``run`` (writers, logs, ...)
+        self._globals_step = -1         # step of the last ``_reduce_globals``
+
+    @property
+    def particles(self):
+        """The particle arrays by global id, global on every rank (``pardem.engine.particles.
+        Particles``: ``positions`` [N, 3] [m], ..., ``get``, ``set``, ``add_property``, ``local``)."""
+        return Particles(self)
+
+    def _reduce_globals(self, again=False):
+        """Collective: the global wall forces (``walls.force``) and fix reactions
+        (``global_reaction``) of the last force evaluation, one allreduce
+        (``particles.reduce_globals``); once per step (``run`` and ``step`` both ask at a run's end)
+        unless ``again`` (``run(0)`` at step 0 computes the forces without a step)."""
+        if again or self._globals_step != self.step_count:
+            self._globals_step = self.step_count
+            reduce_globals(self)
 
     def compute_forces(self, with_energy=True):
         """Forces and torques of the current configuration (after ``f``, ``t`` were zeroed).
@@ -183,10 +200,11 @@ class Simulation:
         5. forces (``compute_forces``): bonds, walls, contacts, global viscous damping, then fixes;
         6. the cell's stress servo from the global Love-Weber stress (one allreduce);
         7. second half kick; the largest speed is checked against ``max_speed`` (reduced every
-           ``check_every`` steps by ``run``).
+           ``check_every`` steps by ``run``);
+        8. with the energy only: the global wall forces and fix reactions (``_reduce_globals``).
 
-        ``with_energy``: compute the contact energy of this step (``run`` asks only on steps after
-        which an operation runs, LAMMPS' eflag).
+        ``with_energy``: compute the contact energy of this step, and reduce the global wall forces
+        and reactions (``run`` asks only on steps after which an operation runs, LAMMPS' eflag).
         """
         t0 = _time.perf_counter()
         e = self.elements
@@ -230,6 +248,8 @@ class Simulation:
         self.step_count += 1
         # not a running sum: no drift, exact on restart
         self.time = self._clock[1] + (self.step_count - self._clock[0]) * self.dt
+        if with_energy:
+            self._reduce_globals()      # walls.force, fix.global_reaction for the operations
 
     def set_dt(self, dt):
         """Change the time step [s] from the next step on (adaptive relaxation); the caller is
@@ -331,6 +351,7 @@ class Simulation:
             for op in operations:
                 if self.step_count % op.every == 0 and self.step_count != end:
                     op(self)
+        self._reduce_globals(again=self.step_count == 0)   # walls.force, fix.global_reaction: end of run
         for op in operations:
             op(self)
         watchdog.pause()    # out of the time loop: the caller may do long serial work now

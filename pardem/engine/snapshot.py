@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pardem.engine.state import Bonds, Elements, Plates
+from pardem.engine.state import PROPERTY_PREFIX, Bonds, Elements, Plates
 from pardem.io.checkpoint import BOND_DATASETS, ELEMENT_DATASETS
 
 
@@ -33,6 +33,8 @@ def payload(sim, attrs=None):
         elements["x_build"] = e.x[:n]
     if e.wall_h.shape[1]:
         elements["wall_h"] = e.wall_h[:n]
+    # custom per-particle arrays (``sim.particles.add_property``), under their pack names
+    elements.update({PROPERTY_PREFIX + k: a[:n] for k, a in e.properties.items()})
     if b is None:
         b = Bonds.empty()
     once = b.counted_once(n)

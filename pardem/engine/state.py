@@ -14,12 +14,16 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 from numba import njit
 
+from pardem.io.checkpoint import PROPERTY_PREFIX
 from pardem.physics.bond_state import BOND_BROKEN_SHEAR, BOND_BROKEN_TENSION, BOND_INTACT  # noqa: F401 (the names of Bonds.state)
 from pardem.physics.quaternion import quat_to_matrix_into
 
 # Per-element arrays that travel with an element when it migrates (f, t and rot are recomputed).
 ELEMENT_FIELDS = ("x", "v", "w", "q", "radius", "mass", "inertia", "inv_mass", "inv_inertia",
                   "x0", "gid", "flags", "wall_h")
+# Custom per-element arrays (``Elements.properties``, ``pardem.engine.particles``) travel in the
+# ``pack`` dicts, in checkpoints and in the migration messages under ``PROPERTY_PREFIX`` plus their
+# name (the prefix is the checkpoint layout's, ``pardem.io.checkpoint``).
 # Per-bond arrays that travel with a bond (i, j are rebuilt from the end gids).
 BOND_FIELDS = ("gid", "gid_i", "gid_j", "L0", "ka", "kb", "kt", "tau_a", "tau_b", "tau_t",
                "u1", "p1", "u2", "p2", "young", "radius", "state", "f_tensile", "f_shear", "f_yield",
@@ -43,6 +47,9 @@ class Elements:
     x0 : reference position of the strain fit [m]; gid : global id; flags : FLAG_* bits
     wall_h : [n, n_walls, 3] tangential force of each frictional wall on the element [N]
         (``pardem.physics.walls``); [n, 0, 3] without wall friction
+    properties : {name: float64 [n] or [n, k]} custom per-element arrays (``sim.particles.
+        add_property``), rows like every field (owned then ghosts); no kernel reads them, they
+        travel with the element (``pack``/``unpack``) and are stored in checkpoints
     """
     x: np.ndarray
     v: np.ndarray
@@ -61,6 +68,7 @@ class Elements:
     flags: np.ndarray
     wall_h: np.ndarray = None
     n_owned: int = 0
+    properties: dict = field(default_factory=dict)
 
     @property
     def n_total(self) -> int:
@@ -87,8 +95,11 @@ class Elements:
                    flags=np.zeros(n, dtype=np.uint8), wall_h=np.zeros((n, 0, 3)), n_owned=n)
 
     def pack(self, rows):
-        """Copies of the migrating fields of ``rows`` (a dict of arrays)."""
-        return {k: getattr(self, k)[rows] for k in ELEMENT_FIELDS}
+        """Copies of the migrating fields of ``rows`` (a dict of arrays; the custom ``properties``
+        under ``PROPERTY_PREFIX + name``)."""
+        out = {k: getattr(self, k)[rows] for k in ELEMENT_FIELDS}
+        out.update({PROPERTY_PREFIX + k: a[rows] for k, a in self.properties.items()})
+        return out
 
     @classmethod
     def unpack(cls, parts, n_owned, copy=True):
@@ -99,8 +110,12 @@ class Elements:
         """
         parts = [p if "wall_h" in p else {**p, "wall_h": np.zeros((len(p["gid"]), 0, 3))} for p in parts]
         data = _join(parts, ELEMENT_FIELDS, copy)
+        # custom arrays: those of the first part (every rank holds the same names)
+        props = [k for k in parts[0] if k.startswith(PROPERTY_PREFIX)] if parts else []
+        extra = _join(parts, props, copy)
         n = data["x"].shape[0]
-        e = cls(f=np.zeros((n, 3)), t=np.zeros((n, 3)), rot=np.empty((n, 3, 3)), n_owned=n_owned, **data)
+        e = cls(f=np.zeros((n, 3)), t=np.zeros((n, 3)), rot=np.empty((n, 3, 3)), n_owned=n_owned, **data,
+                properties={k[len(PROPERTY_PREFIX):]: np.asarray(v, dtype=np.float64) for k, v in extra.items()})
         e.refresh_rotations()
         return e
 
@@ -109,7 +124,8 @@ class Elements:
         _refresh_rot(self.q, self.rot, start, self.n_total if stop is None else stop)
 
     def nbytes(self) -> int:
-        return sum(getattr(self, f.name).nbytes for f in fields(self) if f.name != "n_owned")
+        return (sum(getattr(self, f.name).nbytes for f in fields(self) if f.name not in ("n_owned", "properties"))
+                + sum(a.nbytes for a in self.properties.values()))
 
 
 @dataclass

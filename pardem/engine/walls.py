@@ -18,12 +18,17 @@ friction). Walls do not rotate.
 elements between ranks), attaches it as ``sim.plates`` and checks ``sim.dt`` against the critical time
 step with the walls' stiffness (``pardem.engine.critical_step.critical_time_step_of``).
 
-After each step, ``walls.forces(sim.comm)`` [n_walls, 3] [N] is the total force of the elements
-**on** each wall (collective); ``walls.normal_forces(comm)`` [n_walls] its compressive part
-``-F . n`` (positive when the elements push the wall). Each element's wall load depends on that
-element alone, so the trajectories are the same bits on any number of ranks (with reproducible
-contacts); the total is a floating-point sum over the rows, then over the ranks, so it agrees
-between decompositions to the round-off of that sum (about ``n eps sum_k |F_k|``), not bit for bit.
+``walls.force`` [n_walls, 3] [N] is the total force of the elements **on** each wall and
+``walls.normal_force`` [n_walls] [N] its compressive part ``-F . n`` (positive when the elements
+push the wall): plain arrays, the same on every rank, as of the last step after which an operation
+ran, or the end of the last ``sim.run`` (``Simulation._reduce_globals`` reduces them there, one
+allreduce with the fixes' reactions; ``pardem.engine.particles.reduce_globals``). Reading them
+needs no collective, so a script may do it on one rank. ``walls.forces(comm)`` and
+``normal_forces(comm)`` are the same sums of the last step, collective. Each element's wall load
+depends on that element alone, so the trajectories are the same bits on any number of ranks (with
+reproducible contacts); the total is a floating-point sum over the rows, then over the ranks, so it
+agrees between decompositions to the round-off of that sum (about ``n eps sum_k |F_k|``), not bit
+for bit.
 
 Domain (``check_domain``, at ``add_walls``): in a cell no wall normal may have a component along a
 periodic axis (elements would wrap through the wall). In the 2D mode (``pardem.engine.plane``) a
@@ -84,7 +89,8 @@ class Walls:
         self.velocities = np.ascontiguousarray(vel)
         self.time0 = float(time0)
         self.offsets = self.offsets0.copy()
-        self.wall_force = np.zeros((n, 3))
+        self.wall_force = np.zeros((n, 3))    # this rank's share of the last step [N]
+        self.force = np.zeros((n, 3))         # the global total, reduced by ``sim.run`` [N]
         # Simulation stores the compressive force of the first two walls here (Plates' interface)
         self.force_local = np.zeros(min(n, 2))
 
@@ -106,6 +112,12 @@ class Walls:
     def positions(self):
         """A point on each wall now [n_walls, 3] [m] (the foot of the origin's normal)."""
         return self.normals * self.offsets[:, None]
+
+    @property
+    def normal_force(self):
+        """Compressive normal force on each wall [n_walls] [N] (``-force . n``) from ``self.force``:
+        global, as of the last reduction (module docstring); no collective."""
+        return -np.einsum("wd,wd->w", self.force, self.normals)
 
     def forces(self, comm):
         """Total force of the elements on each wall [n_walls, 3] [N] at the last step (collective;

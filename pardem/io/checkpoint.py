@@ -7,7 +7,9 @@ Layout (``LAYOUT_VERSION`` 2), readable with plain h5py::
         x, v, w [m, m/s, rad/s], q (w, x, y, z body -> world), f, t (forces and torques of the last
         step [N, N m]), radius [m], mass [kg], inertia [kg m^2], x0 (reference of the strain fit
         [m]), x_build (positions at the last ghost rebuild [m]), gid, flags; wall_h [N, n_walls, 3]
-        (tangential force of each frictional wall on the element [N]; only with wall friction)
+        (tangential force of each frictional wall on the element [N]; only with wall friction);
+        property_<name> [N] or [N, k] float64 (a custom per-particle array, ``sim.particles.
+        add_property``; any number of them)
     /bonds/<name>      [B, ...]  each bond once (written by the owner of its lower-gid end)
         gid, gid_i, gid_j, L0 [m], ka [N/m], kb [N m^2], kt [N m/rad], tau_a, tau_b, tau_t [s],
         u1, p1, u2, p2 (body-frame bond axis and twist reference of each end), young [Pa], radius [m],
@@ -59,6 +61,7 @@ from pardem.errors import InstabilityError, OutputError
 from pardem.physics.finite import first_nonfinite
 
 LAYOUT_VERSION = 2
+PROPERTY_PREFIX = "property_"   # /elements/property_<name>: a custom per-particle array (Elements.properties)
 ELEMENT_DATASETS = ("x", "v", "w", "q", "f", "t", "radius", "mass", "inertia", "x0", "x_build",
                     "gid", "flags")
 BOND_DATASETS = ("gid", "gid_i", "gid_j", "L0", "ka", "kb", "kt", "tau_a", "tau_b", "tau_t",
@@ -165,10 +168,24 @@ def attrs_digest(attrs):
     return h.hexdigest()[:32]
 
 
+def property_datasets(path):
+    """The custom per-particle arrays held by checkpoint ``path`` (``elements/property_<name>``)."""
+    with h5py.File(path, "r") as f:
+        return sorted(n for n in f["elements"] if n.startswith(PROPERTY_PREFIX))
+
+
+def _spec(gname, name, ndim):
+    """(dtype, trailing shape) of ``/gname/name`` in the layout, or None; a custom per-particle
+    array (``elements/property_<name>``) is float64 of 1 or 2 dimensions."""
+    if gname == "elements" and name.startswith(PROPERTY_PREFIX) and len(name) > len(PROPERTY_PREFIX):
+        return _F8, (() if ndim <= 1 else _ANY)
+    return SCHEMA.get(gname, {}).get(name)
+
+
 def _as_schema(gname, name, a):
     """``a`` as the dtype the layout stores for ``/gname/name`` (ValueError for a foreign name)."""
     a = np.asarray(a)
-    spec = SCHEMA.get(gname, {}).get(name)
+    spec = _spec(gname, name, a.ndim)
     if spec is None:
         if gname in SCHEMA:
             raise ValueError(f"write_checkpoint: /{gname}/{name} is not part of the checkpoint layout")
@@ -598,9 +615,9 @@ def _check_layout(path, f, attrs):
             ds = group[name]
             where = f"/{gname}/{name}"
             if gname != "series":
-                if name not in SCHEMA[gname]:
+                if _spec(gname, name, ds.ndim) is None:
                     raise CheckpointError(f"--restart {path}: unexpected dataset {where}")
-                dtype, tail = SCHEMA[gname][name]
+                dtype, tail = _spec(gname, name, ds.ndim)
                 if ds.dtype != dtype:
                     raise CheckpointError(f"--restart {path}: {where} has dtype {ds.dtype}, expected {dtype}")
                 if len(ds.shape) != 1 + len(tail) or any(t is not None and t != s for t, s in zip(tail, ds.shape[1:])):

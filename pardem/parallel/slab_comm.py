@@ -3,7 +3,8 @@
 Verbs (LAMMPS style; only ``Simulation.step`` and the setup call them):
 
 * ``exchange``: owned elements whose key left the slab move to their owner with the bonds they take
-  part in (bond state travels whole: reference vectors, stiffness, later plastic strain);
+  part in (bond state travels whole: reference vectors, stiffness, later plastic strain); every
+  per-element array of ``Elements.pack`` travels, the custom ones (``Elements.properties``) too;
 * ``borders``: each rank sends the neighbours its elements within ``ghost_range`` (along the slab
   axis) of the neighbour's nearest owned element; they become ghost rows after the owned rows, and
   bonds are relinked by global id;

@@ -12,6 +12,7 @@ import numpy as np
 from pardem.engine.bonding import BeamMaterial
 from pardem.config import DeckError, check_deck, raw_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA, physics_differences, upgrade
+from pardem import restart
 from pardem.engine import snapshot
 from pardem.io import checkpoint
 from pardem.domains import compact
@@ -479,7 +480,7 @@ def restore_case(comm, deck, path, steps=None, meta=None):
     par = deck["parallel"]
     slab_axis = c.slab_axis if par["slab_axis"] == "auto" else "xyz".index(par["slab_axis"])
     contacts = _contacts(c.contact_law, c.contact_params, c.skin, c.contact_reach)
-    parts = snapshot.read(comm, path, meta, slab_axis, contacts=contacts,
+    parts = restart.read(comm, path, meta, slab_axis, contacts=contacts,
                           slab_comm=lambda slabs: _slab_comm(comm, slabs, c.ghost_range, c.skin, par),
                           bond_options={"damped": bool(c.damped), "breakable": c.breakable,
                                         "densify_p0": c.densify_p0})
