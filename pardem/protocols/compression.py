@@ -481,9 +481,9 @@ def restore_case(comm, deck, path, steps=None, meta=None):
     slab_axis = c.slab_axis if par["slab_axis"] == "auto" else "xyz".index(par["slab_axis"])
     contacts = _contacts(c.contact_law, c.contact_params, c.skin, c.contact_reach)
     parts = restart.read(comm, path, meta, slab_axis, contacts=contacts,
-                          slab_comm=lambda slabs: _slab_comm(comm, slabs, c.ghost_range, c.skin, par),
-                          bond_options={"damped": bool(c.damped), "breakable": c.breakable,
-                                        "densify_p0": c.densify_p0})
+                         slab_comm=lambda slabs: _slab_comm(comm, slabs, c.ghost_range, c.skin, par),
+                         bond_options={"damped": bool(c.damped), "breakable": c.breakable,
+                                       "densify_p0": c.densify_p0})
     case = _assemble(comm, deck, parts.elements, parts.bonds, parts.domain, c, steps, step=int(meta["step"]),
                      samples=columns_to_samples(meta["series"]), contacts=contacts)
     snapshot.resume(case.sim, meta, parts.same)
