@@ -82,3 +82,86 @@ def test_cantilever_gives_the_same_answer_on_two_ranks():
     # in the same orientation); only summation order may differ: 1e-12 relative over the run
     assert d2 == pytest.approx(d1, rel=1e-12)
     assert abs(cantilever_error(two.stdout)) < 1e-6
+
+
+@pytest.fixture(scope="module")
+def pour_one_rank():
+    return run("pour.py", "--quick")
+
+
+def test_pour_floor_carries_the_weight_and_the_bed_packs_randomly(pour_one_rank):
+    res = pour_one_rank
+    assert res.returncode == 0, res.stdout + res.stderr
+    out = res.stdout
+    assert number(r"kinetic / potential energy lost " + FLOAT, out) < 1e-7      # settled
+    # frictionless walls: the floor carries the whole weight, to the momentum bound of the example
+    # (2 sqrt(2 M K) / T over the averaging window T, derived in its docstring)
+    rel = number(r"relative " + FLOAT, out)
+    tol = number(r"tolerance " + FLOAT, out)
+    assert abs(rel) <= tol
+    assert tol < 5e-3       # the bound itself stays sharp: K < 1e-7 of the potential energy lost
+    # a poured bed of frictional spheres: between random loose (0.555, Onoda and Liniger 1990) and
+    # random close packing (0.637, Scott and Kilgour 1969)
+    phi = number(r"bulk packing fraction " + FLOAT, out)
+    assert 0.55 <= phi <= 0.64
+    # the layers along the flat walls and the free surface are looser than the bulk
+    assert number(r"whole-bed packing fraction " + FLOAT, out) < phi
+    assert "PASS" in out
+
+
+@pytest.mark.mpi
+@pytest.mark.skipif(MPIEXEC is None, reason="no mpiexec")
+def test_pour_gives_the_same_bed_on_two_ranks(pour_one_rank):
+    one = pour_one_rank
+    two = run("pour.py", "--quick", ranks=2)
+    assert two.returncode == 0, two.stdout + two.stderr
+    assert "2 rank(s)" in two.stdout
+    # reproducible contacts (the default): the same trajectory bits on any rank count, and the
+    # settling test reads an exact kinetic energy sum, so the run stops at the same step
+    steps = r"(\d+) steps of"
+    assert number(steps, two.stdout) == number(steps, one.stdout)
+    assert number(r"bulk packing fraction " + FLOAT, two.stdout) == \
+        number(r"bulk packing fraction " + FLOAT, one.stdout)
+    # the floor force is a float sum over rows, then ranks: it agrees to round-off (n eps ~ 1e-13)
+    f1 = number(r"floor force " + FLOAT, one.stdout)
+    f2 = number(r"floor force " + FLOAT, two.stdout)
+    assert f2 == pytest.approx(f1, rel=1e-12)
+    assert "PASS" in two.stdout
+
+
+@pytest.fixture(scope="module")
+def fracture_one_rank():
+    return run("fracture.py", "--quick")
+
+
+def test_fracture_breaks_at_the_strength_of_a_section(fracture_one_rank):
+    res = fracture_one_rank
+    assert res.returncode == 0, res.stdout + res.stderr
+    out = res.stdout
+    assert number(r"(\d+) bond\(s\)", out) >= 1
+    # n_s sigma_t pi r^2 for the 3 x 3 bar: 9 * 1e6 Pa * pi (0.5 mm)^2, computed here independently
+    assert number(r"F_rupture = n_s sigma_t pi r\^2 = " + FLOAT, out) == pytest.approx(9 * 1e6 * 3.141592653589793
+                                                                                      * 0.5e-3**2, rel=1e-6)
+    # the example's bound: wave transit over loading time (x 4), bond damping, one step of the end
+    tol = number(r"tolerance " + FLOAT, out)
+    assert tol < 0.05
+    for measure in (r"clamp reaction \S+ N, relative error ", r"N/m = \S+ N, relative error "):
+        assert abs(number(measure + FLOAT, out)) <= tol
+    assert "PASS" in out
+
+
+@pytest.mark.mpi
+@pytest.mark.skipif(MPIEXEC is None, reason="no mpiexec")
+def test_fracture_breaks_at_the_same_step_on_two_ranks(fracture_one_rank):
+    one = fracture_one_rank
+    two = run("fracture.py", "--quick", ranks=2)
+    assert two.returncode == 0, two.stdout + two.stderr
+    assert "2 rank(s)" in two.stdout
+    # bonds are computed in the same orientation on every rank: the same bits, the same first step
+    step = r"first rupture at step (\d+)"
+    assert number(step, two.stdout) == number(step, one.stdout)
+    r1 = number(r"clamp reaction " + FLOAT, one.stdout)
+    r2 = number(r"clamp reaction " + FLOAT, two.stdout)
+    # the clamped layer's force: a float sum over ranks, equal to round-off
+    assert r2 == pytest.approx(r1, rel=1e-12)
+    assert "PASS" in two.stdout
