@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 import pardem
+from _util import bonded_sim, granular_case
+from pardem.engine.state import Elements
 from pardem.engine import granular
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -26,8 +28,8 @@ def comm():
 
 def gas(comm, seed=7, params=HM, **kw):
     pos, L = granular.simple_cubic(4, R, spacing=2.1, jitter=0.02, seed=seed)
-    return pardem.granular_system(comm, pos, R, 2500.0, "hertz_mindlin", params, np.zeros(3), np.full(3, L),
-                                  dt=1e-8, **kw), pos
+    return granular_case(comm, pos, R, 2500.0, "hertz_mindlin", params, np.zeros(3), np.full(3, L),
+                                  skin=None, dt=1e-8, **kw).sim, pos
 
 
 def shuffled(comm):
@@ -35,7 +37,7 @@ def shuffled(comm):
     sim, pos = gas(comm)
     e = sim.elements
     rev = np.arange(e.n_owned)[::-1]
-    sim.elements = pardem.Elements.unpack([e.pack(rev)], e.n_owned)
+    sim.elements = Elements.unpack([e.pack(rev)], e.n_owned)
     sim.run(0)
     return sim, pos
 
@@ -147,8 +149,8 @@ def test_set_positions_and_velocities_then_run_equals_the_built_system(comm):
     a.particles.set("positions", b_pos)
     a.particles.set("velocities", v)
     a.run(300)
-    b = pardem.granular_system(comm, b_pos, R, 2500.0, "hertz_mindlin", HM, np.zeros(3), np.full(3, L),
-                               dt=1e-8, velocities=v)
+    b = granular_case(comm, b_pos, R, 2500.0, "hertz_mindlin", HM, np.zeros(3), np.full(3, L),
+                               skin=None, dt=1e-8, velocities=v).sim
     b.run(300)
     for name in ("positions", "velocities", "angular_velocities", "forces", "torques"):
         assert np.array_equal(a.particles.get(name), b.particles.get(name)), name
@@ -160,7 +162,7 @@ def test_set_velocities_after_a_run_recomputes_the_forces(comm):
     viscous drag (C, no contact), f = -C m v exactly."""
     C = 1e3
     x = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]
-    sim = pardem.bonded_system(comm, x, 0.1, 1000.0, np.zeros((0, 2), int),
+    sim = bonded_sim(comm, x, 0.1, 1000.0, np.zeros((0, 2), int),
                                pardem.BeamMaterial(young=1e9, radius_ratio=0.5, poisson=0.3, damping=0.0),
                                dt=1e-4, viscous_damping=C, velocities=[[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
     sim.run(5)
@@ -216,7 +218,7 @@ def test_clamp_reaction_balances_the_loads_of_a_static_cantilever(comm):
     EI = E * np.pi * (ratio * Rc) ** 4 / 4.0
     m = rho * 4.0 / 3.0 * np.pi * Rc**3
     omega1 = 1.875**2 * np.sqrt(EI / (m / (2.0 * Rc) * L**4))
-    sim = pardem.bonded_system(comm, x, Rc, rho, pairs, pardem.BeamMaterial(young=E, radius_ratio=ratio,
+    sim = bonded_sim(comm, x, Rc, rho, pairs, pardem.BeamMaterial(young=E, radius_ratio=ratio,
                                poisson=0.3, damping=0.0), viscous_damping=2.0 * omega1)
     clamp = pardem.Clamp([0])
     tip = np.array([1e-4, 2e-4, -F])
@@ -257,7 +259,7 @@ def test_wall_force_is_the_weight_of_resting_spheres(comm):
     x = np.stack([3.0 * Rs * np.arange(3), np.zeros(3), radii - overlap], axis=1)
     mass = rho * 4.0 / 3.0 * np.pi * radii**3
     omega = np.sqrt(k / mass.min())
-    sim = pardem.bonded_system(comm, x, radii, rho, np.zeros((0, 2), int),
+    sim = bonded_sim(comm, x, radii, rho, np.zeros((0, 2), int),
                                pardem.BeamMaterial(young=1e9, radius_ratio=0.5, poisson=0.3, damping=0.0),
                                viscous_damping=2.0 * omega,
                                walls=dict(normals=[[0, 0, 1]], points=[[0, 0, 0]], stiffness=k))
@@ -280,7 +282,7 @@ def test_wall_force_is_the_weight_of_resting_spheres(comm):
 
 def test_wall_force_is_reduced_on_the_steps_an_operation_runs(comm):
     """An operation reads the wall force of its own step, not of the end of the last run."""
-    sim = pardem.bonded_system(comm, [[0.0, 0.0, 0.01 + 0.005]], 0.01, 2500.0, np.zeros((0, 2), int),
+    sim = bonded_sim(comm, [[0.0, 0.0, 0.01 + 0.005]], 0.01, 2500.0, np.zeros((0, 2), int),
                                pardem.BeamMaterial(young=1e9, radius_ratio=0.5, poisson=0.3, damping=0.0),
                                walls=dict(normals=[[0, 0, 1]], points=[[0, 0, 0]], stiffness=1e4))
     pardem.add_fixes(sim, pardem.Gravity((0.0, 0.0, -9.81)))
@@ -302,7 +304,7 @@ def test_prescribed_velocity_reaction_is_the_drag_it_overcomes(comm):
     C, V, spin = 50.0, np.array([0.3, -0.2, 0.1]), 2.0
     x = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]
     radii = np.array([0.1, 0.2])
-    sim = pardem.bonded_system(comm, x, radii, 1000.0, np.zeros((0, 2), int),
+    sim = bonded_sim(comm, x, radii, 1000.0, np.zeros((0, 2), int),
                                pardem.BeamMaterial(young=1e9, radius_ratio=0.5, poisson=0.3, damping=0.0),
                                dt=1e-4, viscous_damping=C, velocities=np.tile(V, (2, 1)))
     drive = pardem.PrescribedVelocity([0, 1], V, angular_velocity=(0.0, 0.0, spin))

@@ -23,6 +23,9 @@ import sys
 import numpy as np
 
 import pardem
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+from _util import bonded_sim, granular_case  # noqa: E402
 from pardem.engine import granular
 
 out_dir = sys.argv[1]
@@ -63,8 +66,8 @@ DT = 1e-8
 
 
 def gas(x, params, **kw):
-    return pardem.granular_system(comm, x, R, 2500.0, "hertz_mindlin", params, np.zeros(3), np.full(3, L),
-                                  dt=DT, slab_axis=0, **kw)
+    return granular_case(comm, x, R, 2500.0, "hertz_mindlin", params, np.zeros(3), np.full(3, L),
+                                  skin=None, dt=DT, slab_axis=0, **kw).sim
 
 
 N = len(pos0)
@@ -134,7 +137,7 @@ L_c = 2.0 * RC * (n - 1)
 EI = 1e9 * np.pi * (0.5 * RC) ** 4 / 4.0
 m = 1000.0 * 4.0 / 3.0 * np.pi * RC**3
 omega1 = 1.875**2 * np.sqrt(EI / (m / (2.0 * RC) * L_c**4))
-cant = pardem.bonded_system(comm, x, RC, 1000.0, pairs, material, viscous_damping=2.0 * omega1)
+cant = bonded_sim(comm, x, RC, 1000.0, pairs, material, viscous_damping=2.0 * omega1)
 clamp = pardem.Clamp([0])
 load = np.array([2e-4, -3e-4, -F])
 pardem.add_fixes(cant, clamp, pardem.ExternalForce([n - 1], force=load))
@@ -163,7 +166,7 @@ radii = RS * np.array([1.0, 0.8, 1.2, 0.9])
 xs = np.stack([3.0 * RS * np.arange(4), np.zeros(4), radii], axis=1)
 masses = RHO * 4.0 / 3.0 * np.pi * radii**3
 omega = np.sqrt(K / masses.min())
-rest = pardem.bonded_system(comm, xs, radii, RHO, np.zeros((0, 2), int), material, viscous_damping=2.0 * omega,
+rest = bonded_sim(comm, xs, radii, RHO, np.zeros((0, 2), int), material, viscous_damping=2.0 * omega,
                             walls=dict(normals=[[0, 0, 1]], points=[[0, 0, 0]], stiffness=K))
 pardem.add_fixes(rest, pardem.Gravity((0.0, 0.0, -G)))
 rest.run(3000)
@@ -175,7 +178,7 @@ out.update(rest_C=2.0 * omega, rest_dt=rest.dt, rest_z=xs[:, 2])
 
 # -- a driven row against viscous drag: the drive's reaction is the drag ------------------------
 C, V = 50.0, np.array([0.3, -0.2, 0.1])
-row = pardem.bonded_system(comm, xs, radii, RHO, np.zeros((0, 2), int), material, dt=1e-4, viscous_damping=C,
+row = bonded_sim(comm, xs, radii, RHO, np.zeros((0, 2), int), material, dt=1e-4, viscous_damping=C,
                            velocities=np.tile(V, (4, 1)))
 drive = pardem.PrescribedVelocity(np.arange(4), V, angular_velocity=(0.0, 0.0, 2.0))
 pardem.add_fixes(row, drive)
