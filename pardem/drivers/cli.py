@@ -224,12 +224,29 @@ def _exit_now(comm, signum, why):
     exit_now(EXIT_SIGNAL + signum, comm.rank, f"stopped by {_signal_name(signum)} {why}")
 
 
-def output_dir(comm, args, driver):
-    """Collective: the output folder of this run, checked, created and locked
-    (``pardem.io.run_folder.claim``): ``--out``, or ``default_out``. A bad path or a folder in use
-    or holding another run's results (without ``--overwrite``) ends with one line and exit 2."""
+def check_output(comm, args, driver):
+    """Collective, before any work: the output folder this run will take (``--out``, or
+    ``default_out``), checked as ``output_dir`` checks it but not created
+    (``pardem.io.run_folder.probe``); a bad path or a folder in use or holding another run's
+    results (without ``--overwrite``) ends with one line and exit 2. Pass the path returned to
+    ``output_dir``."""
     restart = getattr(args, "restart", None)
     out = args.out if args.out is not None else default_out(comm, driver, restart)
+    try:
+        run_folder.probe(comm, out, overwrite=getattr(args, "overwrite", False), restart=restart)
+    except DeckError as err:
+        fail_usage(comm, str(err))
+    return out
+
+
+def output_dir(comm, args, driver, out=None):
+    """Collective: the output folder of this run, checked, created and locked
+    (``pardem.io.run_folder.claim``): ``out`` (from ``check_output``), else ``--out``, or
+    ``default_out``. A bad path or a folder in use or holding another run's results (without
+    ``--overwrite``) ends with one line and exit 2."""
+    restart = getattr(args, "restart", None)
+    if out is None:
+        out = args.out if args.out is not None else default_out(comm, driver, restart)
     try:
         return run_folder.claim(comm, out, overwrite=getattr(args, "overwrite", False), restart=restart)
     except DeckError as err:
