@@ -29,6 +29,7 @@ See ``examples/`` (cantilever, drop on a wall, compression test written with the
 Names are imported on first use (PEP 562), so ``import pardem`` itself is cheap and compiles
 nothing; ``from pardem import Simulation`` imports the module that defines it.
 """
+from pardem import _numba_cache  # noqa: F401  first: a writable Numba cache before any kernel is decorated
 import importlib
 
 __version__ = "0.1.0"
