@@ -49,7 +49,7 @@ import numpy as np
 import pardem
 from pardem.protocols import anisotropy_study as study
 from pardem.drivers.cli import (EXIT_OK, add_study_options, driver_parser, fail_usage, option_names,
-                                check_output, option_number, option_numbers, output_dir, plain_json, run_driver, study_restart)
+                                option_number, option_numbers, output_dir, plain_json, run_driver, study_restart)
 from pardem.protocols.compression import build_case
 from pardem.config import DeckError, load_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
@@ -142,7 +142,6 @@ def run(comm, args):
         plan = make_plan(args, deck)
     except DeckError as err:
         fail_usage(comm, str(err))
-    out = check_output(comm, args, "anisotropy")     # a bad --out is refused before the trial builds
     # refuse an unusable deck before any case runs: the rank that will run realisation 0 of each kind
     # builds its domains (loaded along x, y, z) and keeps the packings for it
     packings = {}
@@ -173,7 +172,7 @@ def run(comm, args):
                              "(pip install 'pardem[plot]')\n")
     # checked, created and locked; a folder holding results is refused (unless --overwrite), and a
     # restart writes into a new folder (default DIR-restart-<time>) that gets every record
-    out = output_dir(comm, args, "anisotropy", out=out)
+    out = output_dir(comm, args, "anisotropy")
     n_cases = sum(len(g) for g in study.plan_cases(plan))
     if comm.is_root:
         start_study_folder(out, header, finished)
