@@ -37,6 +37,11 @@ class Schema(dict):
 
 
 INT64_MAX = 2**63 - 1      # integer keys end up in numpy int64 arithmetic
+# Deepest nesting of arrays and inline tables a deck may hold. No key takes more than a list of
+# lists (depth 2); the parser (tomllib) and the checkers recurse once per level, and a few hundred
+# levels exhaust Python's stack (a RecursionError of thousands of lines), so deeper text is
+# refused before it is parsed.
+MAX_NESTING = 16
 DOUBLE_MIN = sys.float_info.min   # smallest normal double: below it a number has lost precision
 
 
@@ -253,18 +258,99 @@ def defaults(schema):
 
 
 def parse_override(text):
-    """``section.key=value`` -> (section, key, value); value is read as TOML, else as a string."""
+    """``section.key=value`` -> (section, key, value); value is read as TOML, else as a string.
+    A value nested more than ``MAX_NESTING`` deep is refused before it is parsed."""
     if "=" not in text or "." not in text.split("=", 1)[0]:
-        raise DeckError(f"--set {text!r}: expected section.key=value")
+        raise DeckError(f"--set {_trim(text)!r}: expected section.key=value")
     path, raw = text.split("=", 1)
     section, key = path.strip().split(".", 1)
+    name = _trim(path.strip())
+    if _too_deep(f"v = {raw}") is not None:
+        raise DeckError(f"--set {name}=...: {_DEEP}")
     try:
         value = tomllib.loads(f"v = {raw.strip()}")["v"]
     except tomllib.TOMLDecodeError:
         value = raw.strip()
+    except RecursionError:   # a backstop of the scan above
+        raise DeckError(f"--set {name}=...: {_DEEP}") from None
     except ValueError:   # an integer of more than 4300 digits
-        raise DeckError(f"--set {path.strip()}=...: the value is an integer of more than 4300 digits") from None
+        raise DeckError(f"--set {name}=...: the value is an integer of more than 4300 digits") from None
     return section, key, value
+
+
+def _nested_deeper(value, limit):
+    """True when lists, tuples or dicts nest more than ``limit`` deep in ``value`` (iterative: a
+    value of any depth, e.g. built by a script, is measured without recursion)."""
+    stack = [(value, 0)]
+    while stack:
+        v, depth = stack.pop()
+        if isinstance(v, (list, tuple, dict)):
+            if depth >= limit:
+                return True
+            stack.extend((x, depth + 1) for x in (v.values() if isinstance(v, dict) else v))
+    return False
+
+
+_DEEP = (f"arrays or inline tables nested more than {MAX_NESTING} levels deep; expected a number, a "
+         f"string, or a list of them")
+_CLOSE = {"[": "]", "{": "}"}
+
+
+def _too_deep(text, limit=MAX_NESTING):
+    """Where TOML ``text`` nests arrays or inline tables more than ``limit`` deep: ``(line, key)``,
+    the 1-based line and the key (as written, prefixed by its ``[table]``) whose value does so, or
+    None. A linear scan that skips strings and comments, so that the parser never sees such text.
+    Table headers (``[a]``, ``[[a]]``) open and close on their own line and count as nesting too,
+    which ``limit`` leaves room for."""
+    depth, line, table, key = 0, 1, "", ""
+    i, n = 0, len(text)
+    line_start = True
+    while i < n:
+        c = text[i]
+        if c == "\n":
+            line, line_start = line + 1, True
+            i += 1
+            continue
+        if c in " \t\r":
+            i += 1
+            continue
+        if c == "#":
+            j = text.find("\n", i)
+            i = n if j < 0 else j
+            continue
+        if c in "\"'":
+            quote = text[i:i + 3] if text[i:i + 3] in ('"""', "'''") else c
+            j = i + len(quote)
+            while j < n and not text.startswith(quote, j):
+                if c == '"' and text[j] == "\\":
+                    j += 1
+                j += 1
+            line += text.count("\n", i, j)
+            i = j + len(quote)
+            line_start = False
+            continue
+        if depth == 0 and line_start and c == "[":    # a [table] or [[array of tables]] header
+            j = text.find("\n", i)
+            j = n if j < 0 else j
+            table = text[i:j].split("#", 1)[0].strip().strip("[]").strip()
+            i, line_start = j, False
+            continue
+        if depth == 0 and line_start:    # a key: text up to its "="
+            j = text.find("=", i)
+            if j < 0:
+                return None
+            key = text[i:j].strip()
+            i, line_start = j + 1, False
+            continue
+        if c in "[{":
+            depth += 1
+            if depth > limit:
+                return line, ".".join(part for part in (table, key) if part)
+        elif c in "]}":
+            depth = max(depth - 1, 0)
+        line_start = False
+        i += 1
+    return None
 
 
 def load_deck(schema, path=None, overrides=(), base=None, checks=()):
@@ -303,9 +389,16 @@ def _read_toml(path):
         raise DeckError(f"{where}: cannot be read: it is {kind}, expected a regular TOML file")
     try:
         with open(path, "rb") as fh:
-            return tomllib.load(fh)
+            text = fh.read().decode("utf-8")
     except (OSError, UnicodeDecodeError) as err:
         raise DeckError(f"{where}: cannot be read ({_one_line(err)})") from None
+    deep = _too_deep(text)
+    if deep is not None:
+        raise DeckError(f"{where}: {_trim(deep[1]) or 'a value'} (line {deep[0]}): {_DEEP}")
+    try:
+        return tomllib.loads(text)
+    except RecursionError:   # a backstop of the scan above
+        raise DeckError(f"{where}: {_DEEP}") from None
     except tomllib.TOMLDecodeError as err:
         raise DeckError(f"{where}: not valid TOML ({_one_line(err)})") from None
     except ValueError as err:   # an integer of more than 4300 digits
@@ -338,6 +431,8 @@ def check_deck(schema, raw, checks=()):
             if key not in schema[section]:
                 raise DeckError(f"unknown key {section}.{_trim(key)}: allowed keys in [{section}] are "
                                 f"{', '.join(schema[section])}")
+            if _nested_deeper(value, MAX_NESTING):
+                raise DeckError(f"{section}.{key}: {_DEEP}")
             deck[section][key] = value
     for section, fields in schema.items():
         for key, f in fields.items():

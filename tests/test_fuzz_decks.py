@@ -21,9 +21,11 @@ from hypothesis import strategies as st
 
 from pardem.config import DeckError, Schema, check_deck, load_deck, raw_deck
 from pardem.protocols import anisotropy_study as study
+from pardem.protocols import biaxial
 from pardem.protocols import calibration as calib
 from pardem.protocols import deck_checks
 from pardem.protocols import isotropic as iso
+from pardem.protocols import response
 from pardem.protocols import triaxial
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 
@@ -36,13 +38,22 @@ EXIT_CODES = {0, 2, 3, 4, 5, 6}   # ok, bad input, unstable, output error, too s
 CALIBRATE_CHECKS = () if deck_checks.calibrate_checks in getattr(calib.CALIBRATE_SCHEMA, "checks", ()) \
     else deck_checks.CALIBRATE_CHECKS
 
-# driver -> (schema, base raw deck, extra checks)
+def _toml(path):
+    import tomllib
+    with open(path, "rb") as fh:
+        return tomllib.load(fh)
+
+
+# driver -> (schema, base raw deck, extra checks): the decks of all 8 drivers
 DRIVERS = {
     "compress": (COMPRESS_SCHEMA, {}, ()),
     "isotropic": (iso.SCHEMA, {}, ()),
     "triaxial": (triaxial.SCHEMA, {}, ()),
     "calibrate": (calib.CALIBRATE_SCHEMA, {}, CALIBRATE_CHECKS),
     "anisotropy": (COMPRESS_SCHEMA, study.STUDY_DECK, ()),
+    "mixture": (iso.SCHEMA, _toml(os.path.join(DRIVERS_DIR, "mixture_study.toml")), ()),
+    "response": (response.SCHEMA, {}, ()),
+    "biaxial": (biaxial.SCHEMA, {}, ()),
 }
 
 WILD = [0, -1, 1, 0.0, -0.0, -1.5, 1e-300, -1e-300, 1e308, -1e308, 5e-324, math.nan, math.inf, -math.inf,
@@ -63,7 +74,7 @@ def _inner_bounds(check):
 def _options(check):
     while check is not None:
         if hasattr(check, "options"):
-            return check.options
+            return check.options or ()     # None: a checker with no word to list (response's times)
         check = getattr(check, "inner", None)
     return ()
 
@@ -229,6 +240,24 @@ NONSENSE = [
     ("isotropic", ["preparation.max_rate=1e12"], "preparation.max_rate", None),
     ("calibrate", ["domain.box=[1, 1, 1]"], "domain.box", None),
     ("calibrate", ["targets.density=1e-300"], "targets.density", None),
+    # out of range by the physics: moduli beyond any solid, pressures crushing the grains,
+    # tolerances that switch a criterion off, a watchdog shorter than its own checks
+    ("isotropic", ["material.shear_modulus=1e308"], "material.shear_modulus", None),
+    ("mixture", ["material.shear_modulus=1e308"], "material.shear_modulus", None),
+    ("triaxial", ["contacts.young=1e308"], "contacts.young", None),
+    ("isotropic", ["preparation.pressures=[1e5, 1e308]"], "preparation.pressures[1]", None),
+    ("isotropic", ["preparation.pressures=[1e9]"], "preparation.pressures[0]", None),   # G = 30 GPa: E / 72
+    ("triaxial", ["loading.confining_pressure=1e308"], "loading.confining_pressure", None),
+    ("triaxial", ["loading.confining_pressure=1e9"], "loading.confining_pressure", None),   # E / 70
+    ("response", ["preparation.pressure=1e308"], "preparation.pressure", None),
+    ("biaxial", ["loading.confining_pressures=[1e308]"], "loading.confining_pressures[0]", None),
+    ("isotropic", ["equilibrium.force_tolerance=1e308"], "equilibrium.force_tolerance", None),
+    ("isotropic", ["equilibrium.kinetic_tolerance=1.5"], "equilibrium.kinetic_tolerance", None),
+    ("response", ["relax.force_tolerance=2"], "relax.force_tolerance", None),
+    ("triaxial", ["preparation.kinetic_ratio=1e308"], "preparation.kinetic_ratio", None),
+    ("isotropic", ["run.watchdog_seconds=0.001"], "run.watchdog_seconds", None),
+    ("compress", ["run.watchdog_seconds=9.9"], "run.watchdog_seconds", None),
+    ("biaxial", ["run.watchdog_seconds=true"], "run.watchdog_seconds", None),
 ]
 
 
@@ -487,3 +516,135 @@ def test_drivers_on_generated_decks_no_traceback_no_hang(driver, tmp_path):
         if not raw:
             assert p.returncode in {0, 4, 5}, (driver, p.returncode, p.stderr[-3000:])
     property_()
+
+
+# -- deep nesting, and the physical ranges at their edges -------------------------------------------
+
+DEEP = 500          # the issue's depth: tomllib alone overflows Python's stack past about 450 levels
+
+
+def deep_list(depth):
+    return "[" * depth + "]" * depth
+
+
+def deep_table(depth):
+    return "{a=" * depth + "1" + "}" * depth
+
+
+def a_key(driver):
+    """A key of the driver's deck (its first number key: the value nested is checked as one)."""
+    schema = DRIVERS[driver][0]
+    return next(f"{s}.{k}" for s, k in schema_keys(schema) if _inner_bounds(schema[s][k].check) is not None)
+
+
+def _one_line_naming(err, *words):
+    msg = str(err)
+    assert "\n" not in msg and len(msg) < 400, msg
+    for w in words:
+        assert w in msg, msg
+
+
+@pytest.mark.parametrize("driver", list(DRIVERS))
+def test_deep_nesting_is_refused_naming_the_key(driver, tmp_path):
+    """``--set key=[[[...]]]`` 500 deep, ``{a={a=...}}`` 400 deep, a ``--config`` file nested as deep
+    and a Python deck nested 5,000 deep: one DeckError line naming the key, no RecursionError. A
+    list of lists (what real keys take) is judged by the key's own checker, as before."""
+    schema, base, checks = DRIVERS[driver]
+    key = a_key(driver)
+    section, name = key.split(".", 1)
+    for value in (deep_list(DEEP), deep_table(400), deep_list(17)):
+        with pytest.raises(DeckError) as err:
+            load_deck(schema, None, [f"{key}={value}"], base=base or None, checks=checks)
+        _one_line_naming(err.value, key, "nested")
+    deck = tmp_path / "deep.toml"
+    deck.write_text(f"# a deck\n[{section}]\n{name} = {deep_list(DEEP)}\n")
+    with pytest.raises(DeckError) as err:
+        load_deck(schema, str(deck), checks=checks)
+    _one_line_naming(err.value, key, "line 3", "nested")
+    deck.write_text(f"[{section}]\n{name} = {deep_table(400)}\n")
+    with pytest.raises(DeckError) as err:
+        load_deck(schema, str(deck), checks=checks)
+    _one_line_naming(err.value, key, "nested")
+    value = 1.0
+    for _ in range(5000):
+        value = [value]
+    with pytest.raises(DeckError) as err:
+        check_deck(schema, merged(base, {section: {name: value}}), checks)
+    _one_line_naming(err.value, key, "nested")
+    # brackets inside strings and comments are not nesting: the key's own checker answers
+    deck.write_text(f"[{section}]  # {'[' * 40}\n{name} = \"{'[' * 40}\"\n")
+    with pytest.raises(DeckError) as err:
+        load_deck(schema, str(deck), checks=checks)
+    _one_line_naming(err.value, key)
+    assert "nested" not in str(err.value)
+    with pytest.raises(DeckError) as err:
+        load_deck(schema, None, [f"{key}={deep_list(2)}"], base=base or None, checks=checks)
+    assert "nested" not in str(err.value)
+
+
+def test_physical_ranges_accept_their_edges():
+    """The edges of the new ranges are accepted: a pressure of E / 100 exactly, a tolerance of 1, a
+    watchdog of 0 (off) and of 10 s."""
+    E = 2.0 * 30e9 * 1.2      # the isotropic default grains: G = 30 GPa, nu = 0.2
+    deck = load_deck(iso.SCHEMA, None, [f"preparation.pressures=[1e5, {E / 100!r}]",
+                                        "equilibrium.force_tolerance=1", "run.watchdog_seconds=0"])
+    assert deck["preparation"]["pressures"][1] == E / 100 and deck["run"]["watchdog_seconds"] == 0.0
+    with pytest.raises(DeckError, match="preparation.pressures\\[1\\]"):
+        load_deck(iso.SCHEMA, None, [f"preparation.pressures=[1e5, {math.nextafter(E / 100, math.inf)!r}]"])
+    assert load_deck(triaxial.SCHEMA, None, ["run.watchdog_seconds=10", "loading.confining_pressure=7e8"])
+    assert load_deck(response.SCHEMA, None, ["relax.force_tolerance=1"])["relax"]["force_tolerance"] == 1.0
+
+
+def test_shipped_decks_of_every_driver_load():
+    """Every deck in drivers/ passes the new ranges (they are the documented inputs)."""
+    schemas = {"compress": COMPRESS_SCHEMA, "anisotropy": COMPRESS_SCHEMA, "isotropic": iso.SCHEMA,
+               "mixture": iso.SCHEMA, "triaxial": triaxial.SCHEMA, "calibrate": calib.CALIBRATE_SCHEMA,
+               "response": response.SCHEMA, "biaxial": biaxial.SCHEMA}
+    names = sorted(n for n in os.listdir(DRIVERS_DIR) if n.endswith(".toml"))
+    assert len(names) >= 15
+    for name in names:
+        schema = schemas[name.split("_")[0].split(".")[0]]
+        load_deck(schema, os.path.join(DRIVERS_DIR, name),
+                  checks=CALIBRATE_CHECKS if schema is calib.CALIBRATE_SCHEMA else ())
+
+
+HUGE_TINY = [1e308, -1e308, 1e-300, 5e-324, 2**64, [1e308, 1e308, 1e308], [1e-300], math.inf, math.nan]
+
+
+@pytest.mark.parametrize("driver", list(DRIVERS))
+def test_every_key_at_huge_and_tiny_magnitudes(driver):
+    """Every key of every driver's deck set to a huge or tiny number (or a list of them): the deck
+    loads or is refused in one line naming a key; never another exception."""
+    schema, base, _ = DRIVERS[driver]
+    for s, k in schema_keys(schema):
+        for v in HUGE_TINY:
+            load_or_refuse(driver, {s: {k: v}})
+
+
+COMMANDS = {
+    "compress": [], "isotropic": [], "triaxial": [], "calibrate": [], "anisotropy": ["--quick"],
+    "mixture": ["--quick"], "response": [], "biaxial": [],
+}
+
+
+@pytest.mark.parametrize("driver", list(COMMANDS))
+def test_drivers_refuse_deep_nesting_in_one_line(driver, tmp_path):
+    """Each of the 8 drivers, on the issue's input (the three forms in turn): exit 2, one line
+    naming the key, no traceback, no output folder."""
+    key = a_key(driver)
+    section, name = key.split(".", 1)
+    form = list(COMMANDS).index(driver) % 3
+    if form == 2:
+        deck = tmp_path / "deep.toml"
+        deck.write_text(f"[{section}]\n{name} = {deep_list(DEEP)}\n")
+        args = ["--config", str(deck)]
+    else:
+        args = ["--set", f"{key}={deep_list(DEEP) if form == 0 else deep_table(400)}"]
+    out = tmp_path / "out"
+    p = subprocess.run([sys.executable, "-m", f"pardem.drivers.{driver}", *COMMANDS[driver], *args, "--out", str(out)],
+                       capture_output=True, text=True, timeout=300, cwd=ROOT,
+                       env=dict(os.environ, PYTHONPATH=ROOT, MPLBACKEND="Agg"))
+    assert p.returncode == 2, p.stderr[-2000:]
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and key in lines[0] and "nested" in lines[0], p.stderr[-2000:]
+    assert not out.exists()

@@ -64,7 +64,7 @@ import time
 
 import pardem
 from pardem.protocols import calibration as calib
-from pardem.drivers.cli import (EXIT_NOT_MEASURED, EXIT_OK, EXIT_UNSTABLE, driver_parser, fail_usage, output_dir,
+from pardem.drivers.cli import (MAX_STEPS, EXIT_NOT_MEASURED, EXIT_OK, EXIT_UNSTABLE, driver_parser, fail_usage, output_dir,
                                 plain_json, run_driver, study_restart)
 from pardem.protocols.compression import SeriesSampler, build_case, measure, with_plate_speed
 from pardem.protocols import shear as shear_protocol
@@ -391,8 +391,8 @@ def run(comm, args):
     if deck["domain"]["kind"] == "compact":
         return run_compact(comm, args, deck, t_start)
     try:
-        if args.steps is not None and args.steps < 1:
-            raise DeckError(f"--steps {args.steps}: expected an integer >= 1")
+        if args.steps is not None and not 1 <= args.steps <= MAX_STEPS:
+            raise DeckError(f"--steps {args.steps}: expected an integer from 1 to {MAX_STEPS:.0e}")
         if (args.steps is not None or args.restart) and not args.verify:
             raise DeckError("--steps and --restart apply to --verify: add --verify")
         targets, cal, raw, _checked = calibrated_deck(deck)

@@ -5,7 +5,10 @@ Exit codes: 0 success; 2 bad input (deck, options, time step, output path) with 
 stderr; 3 the run became unstable; 4 a result could not be written (disk full, permission denied,
 read-only or over quota), one line; 5 the run ended but was too short to measure its result (its
 files are written); 128 + N stopped by signal N (143 SIGTERM, 130 SIGINT, 138 SIGUSR1); 1 unexpected
-error or a silent rank (the watchdog), all ranks are aborted.
+error or a silent rank (the watchdog), all ranks are aborted. A rank killed by SIGKILL (``kill -9``,
+the kernel's out-of-memory killer) can say nothing: mpiexec.mpich then kills the other ranks at once
+with SIGKILL too (no handler runs; it prints its own "BAD TERMINATION ... EXIT CODE: 9" banner) and
+exits 9 (srun: 137); the checkpoints written before are intact (atomic writes).
 
 Signals (``stop_signals``): SIGTERM, SIGINT and SIGUSR1 only record a stop request
 (``pardem.engine.stop``); the time loop reduces it over ranks every ``check_every`` steps and
@@ -65,7 +68,8 @@ def driver_parser(prog, description, schema, run_options=True, comm=None,
         epilog=f"{deck_title}:\n" + describe(schema) + (f"\n\n{epilog}" if epilog else "") +
                "\n\nexit codes: 0 ok, 1 unexpected error or a silent rank, 2 bad input, 3 unstable run, "
                "4 results could not be written (disk full, no permission), 5 run too short to measure its "
-               "result, 128 + N stopped by signal N (143 SIGTERM, 130 SIGINT)")
+               "result, 128 + N stopped by signal N (143 SIGTERM, 130 SIGINT); mpiexec's 9 (srun's 137): a "
+               "rank was killed (kill -9, out of memory), the earlier checkpoints are intact")
     p.comm = comm
     p.add_argument("--config", metavar="FILE.toml", help="input deck (TOML); defaults fill the rest")
     p.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
@@ -224,12 +228,29 @@ def _exit_now(comm, signum, why):
     exit_now(EXIT_SIGNAL + signum, comm.rank, f"stopped by {_signal_name(signum)} {why}")
 
 
-def output_dir(comm, args, driver):
-    """Collective: the output folder of this run, checked, created and locked
-    (``pardem.io.run_folder.claim``): ``--out``, or ``default_out``. A bad path or a folder in use
-    or holding another run's results (without ``--overwrite``) ends with one line and exit 2."""
+def check_output(comm, args, driver):
+    """Collective, before any work: the output folder this run will take (``--out``, or
+    ``default_out``), checked as ``output_dir`` checks it but not created
+    (``pardem.io.run_folder.probe``); a bad path or a folder in use or holding another run's
+    results (without ``--overwrite``) ends with one line and exit 2. Pass the path returned to
+    ``output_dir``."""
     restart = getattr(args, "restart", None)
     out = args.out if args.out is not None else default_out(comm, driver, restart)
+    try:
+        run_folder.probe(comm, out, overwrite=getattr(args, "overwrite", False), restart=restart)
+    except DeckError as err:
+        fail_usage(comm, str(err))
+    return out
+
+
+def output_dir(comm, args, driver, out=None):
+    """Collective: the output folder of this run, checked, created and locked
+    (``pardem.io.run_folder.claim``): ``out`` (from ``check_output``), else ``--out``, or
+    ``default_out``. A bad path or a folder in use or holding another run's results (without
+    ``--overwrite``) ends with one line and exit 2."""
+    restart = getattr(args, "restart", None)
+    if out is None:
+        out = args.out if args.out is not None else default_out(comm, driver, restart)
     try:
         return run_folder.claim(comm, out, overwrite=getattr(args, "overwrite", False), restart=restart)
     except DeckError as err:

@@ -93,6 +93,7 @@ class Isotropic(GranularDriver):
         iso.check_sample(deck)
         if run.args.pressures is not None:
             deck["preparation"]["pressures"] = _pressures(run.args.pressures)
+            iso.pressure_checks(deck)
 
     def build(self, run):
         return iso.build_gas(run.comm, run.deck)

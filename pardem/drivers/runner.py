@@ -7,9 +7,9 @@ and lives here, in this order:
 
 1. the deck: ``--config``/``--set`` (on ``--restart``, the checkpoint's deck is the base), the
    protocol's checks, the restart policy (a restart may change only the keys the protocol lists);
-2. the case: ``build`` or ``restore``; bad input ends here with one line and exit 2, before any
-   output exists;
-3. the output folder (``cli.output_dir``), the protocol's series, the progress reporter, and the
+2. the output folder checked (``cli.check_output``: path, lock, earlier results), then the case:
+   ``build`` or ``restore``; bad input ends here with one line and exit 2, before any output exists;
+3. the output folder taken (``cli.output_dir``), the protocol's series, the progress reporter, and the
    operations: the checkpoint writer (``[checkpoint]``, payload from the protocol), ParaView
    snapshots (``output.vtk_every``), the test fault injection (``PARDEM_FAULT``);
 4. ``execute``: the protocol's run. ``--steps`` may stop it early (``StepLimit``: not an error); a
@@ -144,11 +144,12 @@ def run_protocol(comm, args, protocol):
         except errors as err:
             problem = str(err)
         cli.agree(comm, problem)      # one verdict on every rank before any collective build step
+        out = cli.check_output(comm, args, protocol.name)   # a bad --out is refused before the build
         try:
             run.case = protocol.restore(run) if run.meta is not None else protocol.build(run)
         except errors as err:
             cli.fail_usage(comm, str(err))
-        run.out = cli.output_dir(comm, args, protocol.name)   # checked, created, locked
+        run.out = cli.output_dir(comm, args, protocol.name, out=out)   # checked again, created, locked
         deck, sim = run.deck, run.sim
         run.progress = Progress(comm, protocol.total_steps(run), deck["run"]["progress_seconds"],
                                 int(comm.sum(sim.elements.n_owned)), quiet=args.quiet)

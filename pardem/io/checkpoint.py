@@ -50,6 +50,7 @@ import hashlib
 import json
 import os
 import re
+import signal
 import time
 
 import h5py
@@ -479,6 +480,9 @@ def inspect(path, comm=None, data=True):
     meta, error = None, None
     try:
         _check_path(path)
+        refusal = _probe(path)
+        if refusal is not None:
+            raise CheckpointError(refusal)
         meta, units, gid_bytes = _structure(path)
         if data:
             rank, size = (comm.rank, comm.size) if comm is not None else (0, 1)
@@ -495,6 +499,100 @@ def inspect(path, comm=None, data=True):
     if error is not None:
         raise CheckpointError(error)
     return meta
+
+
+PROBE_SECONDS = 300.0     # a walk of a checkpoint's metadata takes milliseconds; this is a hung reader
+
+
+def _probe(path, timeout=PROBE_SECONDS):
+    """None when a forked child process reads the structure of ``path`` (``_structure``: every
+    attribute, group and dataset header, the attributes' digest, the layout; and one row of every
+    dataset) and finds it sound; else the one-line reason to refuse the file: the child's own
+    ``CheckpointError``, its crash, or its hang (over ``timeout`` [s]).
+
+    A corrupt byte in HDF5's own metadata (object headers, B-trees, heaps) can make the HDF5
+    library itself read out of bounds (a segmentation fault in ``H5Aiterate2``), which no check in
+    Python can catch. So this process parses only a file whose structure a child has read to the
+    end and found consistent with its digests; a file the child refused or crashed on is never
+    opened here (whether a damaged file crashes HDF5 depends on the memory around the bad read: the
+    same file may crash one process and not another). The child's stderr is closed (no crash
+    report) and it leaves no core file. Without ``os.fork`` the file is read in this process."""
+    if not hasattr(os, "fork"):
+        return None
+    read_end, write_end = os.pipe()
+    pid = os.fork()
+    if pid == 0:      # the child: no MPI, no Python exit handlers, no output but its verdict
+        try:
+            import faulthandler
+            import resource
+            os.close(read_end)
+            faulthandler.disable()
+            resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, 1)
+            os.dup2(null, 2)
+            verdict = ""
+            try:
+                _structure(path)
+                _read_first_rows(path)
+            except CheckpointError as err:
+                verdict = str(err)
+            except Exception as err:   # noqa: BLE001 -- any failure of a damaged file is one line
+                text = str(err).splitlines()[0] if str(err) else type(err).__name__
+                verdict = f"--restart {path}: not a readable pardem checkpoint ({type(err).__name__}: {text})"
+            os.write(write_end, ("ok" if not verdict else "no" + verdict).encode("utf-8", "replace")[:4000])
+        finally:
+            os._exit(0)
+    os.close(write_end)
+    try:
+        return _probe_verdict(path, pid, read_end, timeout)
+    finally:
+        os.close(read_end)
+
+
+def _probe_verdict(path, pid, read_end, timeout):
+    """Wait for the probe child ``pid`` (killed after ``timeout`` [s]) and read its verdict."""
+    deadline = time.monotonic() + timeout
+    pause = 0.001
+    while True:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        if time.monotonic() > deadline:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            return (f"--restart {path}: not a readable pardem checkpoint (reading its HDF5 structure did not "
+                    f"finish within {timeout:g} s: corrupt metadata, or a file system that does not answer)")
+        time.sleep(pause)
+        pause = min(2 * pause, 0.05)
+    if os.WIFSIGNALED(status):
+        try:
+            name = signal.Signals(os.WTERMSIG(status)).name
+        except ValueError:
+            name = f"signal {os.WTERMSIG(status)}"
+        return (f"--restart {path}: the file is corrupt: its HDF5 metadata (object headers, B-trees) crashes "
+                f"the HDF5 library ({name} in a test reading); restart from another checkpoint")
+    chunks = []
+    while True:
+        chunk = os.read(read_end, 4096)
+        if not chunk:
+            break
+        chunks.append(chunk)
+    verdict = b"".join(chunks).decode("utf-8", "replace")
+    if verdict == "ok":
+        return None
+    if verdict.startswith("no") and len(verdict) > 2:
+        return " ".join(verdict[2:].split())
+    return f"--restart {path}: not a readable pardem checkpoint (its test reading ended without a verdict)"
+
+
+def _read_first_rows(path):
+    """The first and last row of every dataset (the layout HDF5 parsed points into the file)."""
+    def visit(name, obj):
+        if isinstance(obj, h5py.Dataset) and obj.shape and obj.shape[0] > 0:
+            obj[:1], obj[-1:]
+    with h5py.File(path, "r") as f:
+        f.visititems(visit)
 
 
 def _check_path(path):

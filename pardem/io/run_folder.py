@@ -79,14 +79,63 @@ def results_in(path):
     return sorted(found)
 
 
-def _claim_here(out, overwrite, restart):
-    path = check_path(out)
+def _check_restart(out, path, restart):
     if restart:
         ck = os.path.realpath(restart)
         if ck == os.path.realpath(path) or ck.startswith(os.path.realpath(path) + os.sep):
             raise DeckError(f"--out {out}: holds the checkpoint being restarted ({restart}); a restart writes into "
                             f"its own folder and never touches the original run's files (omit --out for "
                             f"<run>-restart-<time>)")
+
+
+def _in_use(out, holder):
+    return DeckError(f"--out {out}: in use by another run ({holder or 'pid unknown'}); choose another --out")
+
+
+def _holds_results(out, found):
+    return DeckError(f"--out {out}: holds the results of another run ({', '.join(found)}); give --overwrite to "
+                     f"replace them, or another --out")
+
+
+def _probe_here(out, overwrite, restart):
+    """``claim``'s refusals without creating, locking or removing anything: the path, the
+    checkpoint being restarted, a folder locked by a live run or holding results (without
+    ``overwrite``), a place this process may not write (the deepest existing folder of the path)."""
+    path = check_path(out)
+    _check_restart(out, path, restart)
+    head = path
+    while not os.path.lexists(head):
+        head = os.path.dirname(head)
+    if not os.access(head, os.W_OK | os.X_OK):
+        raise _output_error(out, OSError(errno.EACCES, "Permission denied (or a read-only file system)", head))
+    if head != path:
+        return path
+    try:
+        lock = open(os.path.join(path, LOCK_NAME), "r")
+    except FileNotFoundError:
+        lock = None
+    except OSError as err:
+        raise _output_error(out, err) from err
+    if lock is not None:
+        with lock:
+            try:
+                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)     # released when closed
+            except OSError as err:
+                if err.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    raise _in_use(out, lock.read().strip()) from None
+                raise _output_error(out, err) from err
+    try:
+        found = results_in(path)
+    except OSError as err:
+        raise _output_error(out, err) from err
+    if found and not overwrite:
+        raise _holds_results(out, found)
+    return path
+
+
+def _claim_here(out, overwrite, restart):
+    path = check_path(out)
+    _check_restart(out, path, restart)
     try:
         os.makedirs(path, exist_ok=True)
         lock = open(os.path.join(path, LOCK_NAME), "a+")
@@ -99,14 +148,12 @@ def _claim_here(out, overwrite, restart):
         holder = lock.read().strip()
         lock.close()
         if err.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
-            raise DeckError(f"--out {out}: in use by another run ({holder or 'pid unknown'}); choose another "
-                            f"--out") from None
+            raise _in_use(out, holder) from None
         raise _output_error(out, err) from err
     try:
         found = results_in(path)
         if found and not overwrite:
-            raise DeckError(f"--out {out}: holds the results of another run ({', '.join(found)}); give "
-                            f"--overwrite to replace them, or another --out")
+            raise _holds_results(out, found)
         for name in found:
             target = os.path.join(path, name)
             if os.path.isdir(target) and not os.path.islink(target):
@@ -133,6 +180,14 @@ def _output_error(out, err):
                        + (f" ({err.filename})" if err.filename else ""))
 
 
+def probe(comm, out, overwrite=False, restart=None):
+    """Collective: ``claim``'s verdict on ``out`` without touching the file system (the drivers'
+    check before they build a case, so that a bad ``--out`` is refused before any work). Returns
+    the absolute path, or raises the same ``DeckError`` or ``OutputError`` on every rank. ``claim``
+    checks again when it takes the folder (another run may have taken it meanwhile)."""
+    return _collective_verdict(comm, lambda: _probe_here(out, overwrite, restart))
+
+
 def claim(comm, out, overwrite=False, restart=None):
     """Collective: the absolute output folder ``out``, checked, created and locked for this run.
 
@@ -141,10 +196,15 @@ def claim(comm, out, overwrite=False, restart=None):
     Raises the same ``DeckError`` (bad path, folder in use or holding results) or
     ``OutputError`` (the file system refused) on every rank.
     """
+    return _collective_verdict(comm, lambda: _claim_here(out, overwrite, restart))
+
+
+def _collective_verdict(comm, here):
+    """``here()`` on rank 0; its path, DeckError or OutputError on every rank."""
     outcome = None
     if comm.is_root:
         try:
-            outcome = ("ok", _claim_here(out, overwrite, restart))
+            outcome = ("ok", here())
         except DeckError as err:
             outcome = ("deck", str(err))
         except OutputError as err:

@@ -176,7 +176,7 @@ SCHEMA = Schema({
                            "steps between ParaView snapshots (DIR/paraview/pardem.pvd); 0 = none"),
         "plot": Field(True, boolean, "draw biaxial.png and the localisation maps (needs matplotlib)"),
     },
-}, checks=(isotropic.sample_checks, biaxial_checks))
+}, checks=(isotropic.sample_checks, biaxial_checks, isotropic.pressure_checks))
 
 COLUMNS = ("step", "time", "pressure_index", "pc", "eps_axial", "eps_vol", "sigma_axial", "sigma_lateral",
            "sigma_axial_inner", "sigma_lateral_inner", "q", "s", "sin_phi", "sigma_axial_platens", "coordination", "sliding_fraction", "membrane_grains",

@@ -11,11 +11,68 @@ import math
 import os
 import sys
 
-from pardem.config import DeckError, Field, number
+from pardem.config import DeckError, Field, _short, number
+
+# The watchdog (pardem.parallel.watchdog) checks every rank once per period of min(1 s, limit / 10)
+# and gives a rank falling silent a grace of max(3 periods, 2 s) before judging it (a compiled call
+# or a checkpoint write may hold the thread that long). A limit must span several of those rounds,
+# or a healthy run is aborted: 10 s is ten periods of 1 s and five times the grace.
+WATCHDOG_MIN_SECONDS = 10.0
+
+
+def _watchdog_seconds(name, v):
+    """0 (off) or a limit of at least ``WATCHDOG_MIN_SECONDS`` [s]."""
+    inner = number(lo=WATCHDOG_MIN_SECONDS, lo_open=False)
+    if not isinstance(v, bool) and isinstance(v, (int, float)) and v == 0:
+        return 0.0
+    try:
+        return inner(name, v)
+    except DeckError:
+        raise DeckError(f"{name} = {_short(v)}: expected 0 (off) or a number of seconds >= "
+                        f"{WATCHDOG_MIN_SECONDS:g} (the watchdog checks once a second and allows a rank 2 s "
+                        f"of silence before judging it: a shorter limit aborts healthy runs)") from None
+
+
+_watchdog_seconds.inner = number(lo=WATCHDOG_MIN_SECONDS, lo_open=False)
 
 # [run] watchdog_seconds of every driver's deck (read by ``pardem.drivers.cli.read_deck``)
-WATCHDOG_FIELD = Field(120.0, number(lo=0.0, lo_open=False),
-                       "abort the job when a rank shows no progress for this long [s] (0 = off)")
+WATCHDOG_FIELD = Field(120.0, _watchdog_seconds,
+                       f"abort the job when a rank shows no progress for this long [s] (0 = off, else >= "
+                       f"{WATCHDOG_MIN_SECONDS:g})")
+
+# The grains' elastic moduli: no solid is stiffer than diamond (Young's modulus about 1.1e12 Pa,
+# shear modulus about 0.5e12 Pa); ten times that bounds every material a deck may describe and
+# keeps every derived stiffness (E = 2 G (1 + nu), contact stiffnesses, wave speeds) finite.
+MAX_MODULUS = 1e13
+# A confining or preparation pressure p of Hertzian grains of Young's modulus E: a dense packing
+# (solid fraction 0.64, coordination 6) carries a mean contact force F = 4 pi R^2 p / (0.64 x 6)
+# and Hertz's law gives the overlap delta / R = (3 F / (4 E* sqrt(R / 2) R^1.5))^(2/3) with
+# E* = E / (2 (1 - nu^2)): about 3.5 % at p = E / 1000, 16 % at p = E / 100. Hertz's law is a small-
+# strain result (delta << R) and the grains' elasticity fails well before, so p <= E / 100 bounds
+# every meaningful test (the shipped decks stay below E / 500).
+MAX_PRESSURE_FRACTION = 0.01
+
+
+def modulus():
+    """Checker of a grain modulus [Pa]: in (0, ``MAX_MODULUS``]."""
+    return number(lo=0.0, hi=MAX_MODULUS, hi_open=False)
+
+
+def tolerance():
+    """Checker of a relative tolerance: in (0, 1] (above 1 a criterion is off)."""
+    return number(lo=0.0, hi=1.0, hi_open=False)
+
+
+def check_pressures(pressures, young, key, modulus_keys):
+    """Refuse a pressure [Pa] above ``MAX_PRESSURE_FRACTION`` of the grains' Young modulus ``young``
+    [Pa] (set by ``modulus_keys``): Hertzian grains would overlap by more than 15 % of their radius."""
+    limit = MAX_PRESSURE_FRACTION * young
+    for k, p in enumerate(pressures):
+        if not p <= limit:
+            where = key if len(pressures) == 1 and not key.endswith("s") else f"{key}[{k}]"
+            raise DeckError(f"{where} = {p!r} Pa is above {MAX_PRESSURE_FRACTION:g} x the grains' Young modulus "
+                            f"{fmt(young)} Pa ({modulus_keys}): Hertzian grains would overlap by more than 15 % "
+                            f"of their radius; expected a pressure of at most {fmt(limit)} Pa")
 
 MAX_STEPS = 1e10        # a longer run is refused (about a year at 300 steps/s: issue 16)
 MIN_STRAIN = 1e-12      # positions carry a relative round-off of 1e-16: a strain of 1e-12 keeps 4 digits

@@ -149,6 +149,18 @@ def sample_checks(deck):
                        "sample.n, replicate.copies, sample.radii" if "replicate" in deck else "sample.n, sample.radii")
 
 
+def pressure_checks(deck):
+    """Every pressure of the deck (``preparation.pressures`` or ``preparation.pressure``,
+    ``loading.confining_pressures``) at most ``deck_checks.MAX_PRESSURE_FRACTION`` of the grains'
+    Young modulus."""
+    E = young_modulus(deck["material"])
+    for section, key in (("preparation", "pressures"), ("preparation", "pressure"), ("loading", "confining_pressures")):
+        value = deck.get(section, {}).get(key)
+        if value is not None:
+            dc.check_pressures(value if isinstance(value, (list, tuple)) else [value], E, f"{section}.{key}",
+                               "material.shear_modulus, material.poisson")
+
+
 def run_checks(deck):
     """The time step (``run.dt_fraction`` of the Rayleigh step of the smallest sphere) is a normal
     double; the largest run the step caps allow is at most ``MAX_STEPS``; the servo's largest rate
@@ -192,7 +204,7 @@ SCHEMA = Schema({
         "gas_solid_fraction": Field(0.25, number(0.0, 0.33), "solid fraction of the initial gas"),
     },
     "material": {
-        "shear_modulus": Field(30e9, positive(), "grain shear modulus G [Pa]"),
+        "shear_modulus": Field(30e9, dc.modulus(), "grain shear modulus G [Pa]"),
         "poisson": Field(0.2, number(-1.0, 0.5), "grain Poisson ratio"),
         "friction": Field(0.3, number(lo=0.0, lo_open=False),
                           "contact friction when measuring the moduli (preparation is frictionless)"),
@@ -221,9 +233,9 @@ SCHEMA = Schema({
                            "largest number of steps per pressure (compression and relaxation)"),
     },
     "equilibrium": {
-        "kinetic_tolerance": Field(1e-9, positive(), "E_k / (N p0 V_mean) below this"),
-        "force_tolerance": Field(1e-4, positive(), "mean unbalanced force / mean contact force below this"),
-        "pressure_tolerance": Field(1e-3, positive(), "|p - p0| / p0 below this"),
+        "kinetic_tolerance": Field(1e-9, dc.tolerance(), "E_k / (N p0 V_mean) below this"),
+        "force_tolerance": Field(1e-4, dc.tolerance(), "mean unbalanced force / mean contact force below this"),
+        "pressure_tolerance": Field(1e-3, dc.tolerance(), "|p - p0| / p0 below this"),
     },
     "moduli": {
         "enabled": Field(True, boolean, "measure the moduli at each pressure"),
@@ -248,7 +260,7 @@ SCHEMA = Schema({
                            "steps between ParaView snapshots (DIR/paraview/pardem.pvd); 0 = none"),
         "plot": Field(True, boolean, "draw isotropic.png and force_distribution.png (needs matplotlib)"),
     },
-}, checks=(domain_checks, sample_checks, run_checks))
+}, checks=(domain_checks, sample_checks, run_checks, pressure_checks))
 
 # the series: one row per equilibrium check (every preparation.check_every steps) of every stage
 STAGES = ("prepare", "K", "mu")      # the series' stage codes 0, 1, 2

@@ -165,11 +165,11 @@ SCHEMA = Schema({
         "damping": Field("auto", auto_or(positive()),
                          "global viscous damping C [1/s] of the relaxations; auto = pi c / H (twice the "
                          "lowest angular frequency of the layer)"),
-        "force_tolerance": Field("auto", auto_or(positive()),
+        "force_tolerance": Field("auto", auto_or(dc.tolerance()),
                                  "mean unbalanced force / mean contact force below this (the residual forces "
                                  "may move up to 2 N tol / load.fraction of F; the run notes it when above "
                                  "1 %); auto = 0.01 load.fraction / (2 N): at most 1 % of F"),
-        "kinetic_tolerance": Field(1e-14, positive(), "E_k / (N p V_mean) below this"),
+        "kinetic_tolerance": Field(1e-14, dc.tolerance(), "E_k / (N p V_mean) below this"),
         "check_every": Field(200, number(lo=1, lo_open=False, integer=True), "steps between checks"),
         "max_steps": Field(300000, number(lo=1, lo_open=False, integer=True),
                            "largest number of steps of each relaxation"),
@@ -195,7 +195,7 @@ SCHEMA = Schema({
                                                  "dsigma_yy, displacement per grain) at each record"),
         "plot": Field(True, boolean, "draw response.png (needs matplotlib)"),
     },
-}, checks=(iso.sample_checks, run_checks))
+}, checks=(iso.sample_checks, run_checks, iso.pressure_checks))
 
 SERIES_COLUMNS = ("step", "time", "stage", "unbalanced", "kinetic", "top_force", "bottom_force")
 SERIES_UNITS = ("1", "s", "1", "1", "1", "N", "N")

@@ -53,6 +53,13 @@ def sample_checks(deck):
     dc.granular_checks(n, s["density"], R * (1.0 - d), R * (1.0 + d), mean_volume, "sample.per_edge, sample.radius")
 
 
+def pressure_checks(deck):
+    """The confining pressure at most ``deck_checks.MAX_PRESSURE_FRACTION`` of the grains' Young
+    modulus."""
+    dc.check_pressures([deck["loading"]["confining_pressure"]], deck["contacts"]["young"],
+                       "loading.confining_pressure", "contacts.young")
+
+
 def run_checks(deck):
     """The time step (``time_step``: Rayleigh and cement steps of the smallest sphere) is a normal
     double; the loading (``loading_steps``' count: each step shortens the axial edge by the factor
@@ -91,7 +98,7 @@ SCHEMA = Schema({
                       "seed of radii, jitter and velocities (the same sample on any number of ranks)"),
     },
     "contacts": {
-        "young": Field(70e9, positive(), "grains' Young modulus [Pa] (glass)"),
+        "young": Field(70e9, dc.modulus(), "grains' Young modulus [Pa] (glass)"),
         "poisson": Field(0.3, number(-1.0, 0.5), "grains' Poisson ratio"),
         "friction": Field(0.3, number(lo=0.0, lo_open=False), "Coulomb friction of the loading"),
         "restitution": Field(0.5, number(0.0, 1.0, hi_open=False),
@@ -115,7 +122,7 @@ SCHEMA = Schema({
                                                   "initial rate, capped by max_rate)"),
         "max_rate": Field(100.0, positive(), "cap of the servo's strain rate [1/s]"),
         "tolerance": Field(0.01, number(0.0, 1.0), "relative pressure tolerance of the end state"),
-        "kinetic_ratio": Field(1e-4, positive(), "end state: kinetic / elastic contact energy below this"),
+        "kinetic_ratio": Field(1e-4, dc.tolerance(), "end state: kinetic / elastic contact energy below this"),
         "checks": Field(3, number(lo=1, lo_open=False, integer=True),
                         "consecutive checks (every check_every steps) meeting both criteria"),
         "check_every": Field(200, number(lo=1, lo_open=False, integer=True), "steps between checks"),
@@ -140,7 +147,7 @@ SCHEMA = Schema({
                            "steps between ParaView snapshots (DIR/paraview/pardem.pvd); 0 = none"),
         "plot": Field(True, boolean, "draw triaxial.png (needs matplotlib)"),
     },
-}, checks=(sample_checks, run_checks))
+}, checks=(sample_checks, run_checks, pressure_checks))
 
 COLUMNS = ("step", "time", "eps_axial", "eps_vol", "q", "p", "sigma_axial", "sigma_lateral_1",
            "sigma_lateral_2", "broken_fraction", "cements_intact", "cements_fading", "coordination",
