@@ -49,7 +49,7 @@ import time
 
 import numpy as np
 
-from pardem.config import load_deck
+from pardem.io.deck_file import load_deck
 from pardem.parallel.communicator import Communicator
 from pardem.protocols import isotropic as iso
 from pardem.protocols import moduli_check

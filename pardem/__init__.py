@@ -35,7 +35,7 @@ The test protocols (compression, isotropic, triaxial, biaxial, point-load respon
 Names are imported on first use (PEP 562), so ``import pardem`` itself is cheap and compiles
 nothing; ``from pardem import Simulation`` imports the module that defines it.
 """
-from pardem import _numba_cache  # noqa: F401  first: a writable Numba cache before any kernel is decorated
+from pardem.io import numba_cache  # noqa: F401  first: a writable Numba cache before any kernel is decorated
 import importlib
 
 __version__ = "0.1.0"

@@ -5,8 +5,6 @@ line naming the field and the values it allows; drivers print it and exit with s
 """
 import copy
 import math
-import os
-import stat
 import sys
 import tomllib
 from dataclasses import dataclass
@@ -353,45 +351,20 @@ def _too_deep(text, limit=MAX_NESTING):
     return None
 
 
-def load_deck(schema, path=None, overrides=(), base=None, checks=()):
-    """Read ``path`` (TOML, may be None; else start from the deck ``base``), apply overrides, check
-    every field, then the schema's cross-field checks and ``checks`` (see ``check_deck``); returns a
-    nested dict. ``path`` must be a regular file: a FIFO, directory or device is refused without
-    opening it (opening a FIFO would block)."""
-    raw = copy.deepcopy(base) if base is not None and path is None else {}
-    if path is not None:
-        raw = _read_toml(path)
+def apply_overrides(raw, overrides):
+    """``raw`` (nested dict, changed in place) with the ``--set SECTION.KEY=VALUE`` texts applied."""
     for text in overrides:
         section, key, value = parse_override(text)
         raw.setdefault(section, {})
         if not isinstance(raw[section], dict):
             raise DeckError(f"[{section}] must be a table")
         raw[section][key] = value
-    return check_deck(schema, raw, checks)
+    return raw
 
 
-_FILE_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
-               (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-               (stat.S_ISSOCK, "a socket"))
-
-
-def _read_toml(path):
-    """The TOML table of the regular file ``path``; DeckError (one line) for anything else."""
-    where = f"--config {path}"
-    try:
-        mode = os.stat(path).st_mode
-    except FileNotFoundError:
-        raise DeckError(f"{where}: no such file") from None
-    except (OSError, ValueError) as err:   # ValueError: a path with a NUL byte
-        raise DeckError(f"{where}: cannot be read ({_one_line(err)})") from None
-    if not stat.S_ISREG(mode):
-        kind = next((text for test, text in _FILE_KINDS if test(mode)), "not a regular file")
-        raise DeckError(f"{where}: cannot be read: it is {kind}, expected a regular TOML file")
-    try:
-        with open(path, "rb") as fh:
-            text = fh.read().decode("utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise DeckError(f"{where}: cannot be read ({_one_line(err)})") from None
+def parse_toml(text, where):
+    """The TOML table of deck text ``text``; DeckError (one line, ``where`` naming the source) for
+    text nested too deep or not valid TOML."""
     deep = _too_deep(text)
     if deep is not None:
         raise DeckError(f"{where}: {_trim(deep[1]) or 'a value'} (line {deep[0]}): {_DEEP}")

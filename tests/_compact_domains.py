@@ -4,7 +4,7 @@ so that a session running both builds and solves each once.
 """
 import functools
 
-from pardem.config import load_deck
+from pardem.io.deck_file import load_deck
 from pardem.parallel.communicator import Communicator
 from pardem.protocols import anisotropy_study as study
 from pardem.protocols.compression import build_case, static_modulus

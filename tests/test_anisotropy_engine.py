@@ -13,7 +13,7 @@ linear network grows with each bond stiffness).
 import numpy as np
 import pytest
 
-from pardem.config import load_deck
+from pardem.io.deck_file import load_deck
 from pardem.domains.compact import compact_packing
 from pardem.parallel.communicator import Communicator
 from pardem.physics.anisotropy import lrt_frame

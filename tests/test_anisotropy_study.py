@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from pardem.protocols import anisotropy_study as study
-from pardem.config import load_deck
+from pardem.io.deck_file import load_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.drivers import anisotropy
 from pardem.io.records import read_records

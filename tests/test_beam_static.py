@@ -13,7 +13,7 @@ import pytest
 
 from _util import perpendicular, random_unit, two_elements
 from test_damping_modes import linear_matrices      # the kernel's K by central differences
-from pardem.config import load_deck
+from pardem.io.deck_file import load_deck
 from pardem.parallel.communicator import Communicator
 from pardem.physics import beam_static
 from pardem.protocols.compression import build_case, static_modulus

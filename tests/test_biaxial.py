@@ -251,7 +251,7 @@ def hex_case(comm=None, slab_axis=0, mx=12, my=14, overlap=2e-3):
 
 
 def hex_deck():
-    from pardem.config import load_deck
+    from pardem.io.deck_file import load_deck
     from pardem.protocols import biaxial
     deck = load_deck(biaxial.SCHEMA)
     deck["sample"]["radii"], deck["sample"]["fractions"] = [R], [1.0]
@@ -602,7 +602,8 @@ def test_bad_biaxial_input_is_one_line_and_exit_2(tmp_path, setting, field):
 def test_the_memory_check_counts_the_copies():
     """The deck's memory check is of the replicated sample: 10^4 grains pass, the same copied
     100 x 100 times (10^8 grains, about 100 GB) is refused naming replicate.copies."""
-    from pardem.config import DeckError, load_deck
+    from pardem.config import DeckError
+    from pardem.io.deck_file import load_deck
     from pardem.protocols import biaxial
     load_deck(biaxial.SCHEMA, overrides=["sample.n=10000"])
     with pytest.raises(DeckError, match="replicate.copies"):

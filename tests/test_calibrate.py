@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from pardem.protocols import calibration as calib
-from pardem.config import DeckError, load_deck
+from pardem.config import DeckError
+from pardem.io.deck_file import load_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.drivers import calibrate
 from pardem.drivers.cli import EXIT_NOT_MEASURED

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from pardem.protocols.compression import build_case, static_modulus
-from pardem.config import load_deck
+from pardem.io.deck_file import load_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.domains.compact import (MIN_FRACTION, bonded_pairs, compact_domain, compact_packing,
                                     element_count, overlap_forces)

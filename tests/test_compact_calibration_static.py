@@ -12,7 +12,8 @@ The shear measurement (``compact_shear``) has no static counterpart here and is 
 """
 import pytest
 
-from pardem.config import check_deck, load_deck
+from pardem.config import check_deck
+from pardem.io.deck_file import load_deck
 from pardem.domains.compact import compact_packing
 from pardem.parallel.communicator import Communicator
 from pardem.protocols import calibration as calib

@@ -5,7 +5,8 @@ import sys
 
 import pytest
 
-from pardem.config import DeckError, defaults, load_deck
+from pardem.config import DeckError, defaults
+from pardem.io.deck_file import load_deck
 
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.drivers import compress

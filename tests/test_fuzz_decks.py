@@ -19,7 +19,8 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from pardem.config import DeckError, Schema, check_deck, load_deck, raw_deck
+from pardem.config import DeckError, Schema, check_deck, raw_deck
+from pardem.io.deck_file import load_deck
 from pardem.protocols import anisotropy_study as study
 from pardem.protocols import biaxial
 from pardem.protocols import calibration as calib

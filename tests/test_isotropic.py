@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from pardem.protocols import isotropic as iso
-from pardem.config import load_deck
+from pardem.io.deck_file import load_deck
 from pardem.parallel.communicator import Communicator
 from pardem.physics.hertz_mindlin import effective_moduli
 from pardem.physics.timestep import rayleigh_time_step

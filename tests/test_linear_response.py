@@ -20,7 +20,7 @@ import numpy as np
 from pardem import restart
 import pytest
 
-from pardem.config import load_deck
+from pardem.io.deck_file import load_deck
 from pardem.engine.state import Elements
 from pardem.parallel.communicator import Communicator
 from pardem.physics import effective_medium as emt

@@ -16,7 +16,7 @@ import sys
 import numpy as np
 import pytest
 
-from pardem.config import load_deck
+from pardem.io.deck_file import load_deck
 from pardem.parallel.communicator import Communicator
 from pardem.physics import structure
 from pardem.protocols import isotropic as iso

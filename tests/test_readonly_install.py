@@ -4,7 +4,7 @@ nor ``$HOME`` can be written (a cluster's software tree), so Numba's own cache p
 The package is copied to a folder made read-only for the user running it (as root, who writes
 anywhere, the folder and ``HOME`` are read-only bind mounts in a private mount namespace,
 ``unshare -m``), ``HOME`` points to a folder it cannot write and ``NUMBA_CACHE_DIR`` /
-``XDG_CACHE_HOME`` are unset. Before ``pardem._numba_cache`` Numba
+``XDG_CACHE_HOME`` are unset. Before ``pardem.io.numba_cache`` Numba
 refused to decorate the kernels ("cannot cache function ...: no locator available").
 """
 import os
@@ -82,6 +82,6 @@ def test_import_and_a_kernel_on_a_read_only_install():
 def test_a_writable_tree_or_a_set_cache_dir_is_left_to_numba(tmp_path):
     """Where Numba can cache (the tree's __pycache__, the user cache) or the user chose
     ``NUMBA_CACHE_DIR``, nothing is set: the caching stays Numba's own."""
-    from pardem import _numba_cache
-    assert _numba_cache.choose(str(tmp_path), {"NUMBA_CACHE_DIR": "/somewhere"}) is None
-    assert _numba_cache.choose(str(tmp_path), {}) is None            # tmp_path/__pycache__ is writable
+    from pardem.io import numba_cache
+    assert numba_cache.choose(str(tmp_path), {"NUMBA_CACHE_DIR": "/somewhere"}) is None
+    assert numba_cache.choose(str(tmp_path), {}) is None            # tmp_path/__pycache__ is writable

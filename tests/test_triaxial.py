@@ -18,7 +18,7 @@ import pytest
 
 from pardem.io.series import read_series
 from pardem.protocols import triaxial
-from pardem.config import load_deck
+from pardem.io.deck_file import load_deck
 from pardem.drivers import triaxial as driver
 from pardem.parallel.communicator import Communicator
 from pardem.engine.periodic_cell import PeriodicCell

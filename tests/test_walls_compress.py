@@ -63,7 +63,7 @@ def test_a_tilted_domain_stays_between_frictionless_plates(tmp_path):
     plate mismatch; the mean force's secant is the slope's modulus but for the bond damping's viscous
     stress, which adds at most tau_max / (t - T/2) of it (0.6 %), and the loading-rate error (0.7 %
     after 8 transits, pardem.protocols.anisotropy_study; this run lasts 47): measured +1.1 %."""
-    from pardem.config import load_deck
+    from pardem.io.deck_file import load_deck
     from pardem.parallel.communicator import Communicator
     from pardem.protocols.compression import build_case
     from pardem.protocols.compression_deck import COMPRESS_SCHEMA

@@ -51,7 +51,8 @@ from pardem.protocols import anisotropy_study as study
 from pardem.drivers.cli import (EXIT_OK, add_study_options, driver_parser, fail_usage, option_names,
                                 option_number, option_numbers, output_dir, plain_json, run_driver, study_restart)
 from pardem.protocols.compression import build_case
-from pardem.config import DeckError, load_deck
+from pardem.config import DeckError
+from pardem.io.deck_file import load_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.io.paraview import ParaViewWriter
 from pardem.io.records import RecordLog, start_study_folder

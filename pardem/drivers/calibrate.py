@@ -68,7 +68,8 @@ from pardem.drivers.cli import (MAX_STEPS, EXIT_NOT_MEASURED, EXIT_OK, EXIT_UNST
                                 plain_json, run_driver, study_restart)
 from pardem.protocols.compression import SeriesSampler, build_case, measure, with_plate_speed
 from pardem.protocols import shear as shear_protocol
-from pardem.config import DeckError, check_deck, load_deck
+from pardem.config import DeckError, check_deck
+from pardem.io.deck_file import load_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.io.paraview import ParaViewWriter
 from pardem.io.records import RecordLog, read_study_header, start_study_folder

@@ -28,7 +28,8 @@ import signal
 import sys
 import time
 
-from pardem.config import DeckError, choice, describe, load_deck
+from pardem.config import DeckError, choice, describe
+from pardem.io.deck_file import load_deck
 from pardem.engine import stop
 from pardem.errors import InstabilityError, Interrupted, OutputError
 from pardem.io import run_folder

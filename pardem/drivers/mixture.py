@@ -30,7 +30,8 @@ import sys
 import time
 
 import pardem
-from pardem.config import DeckError, check_deck, load_deck
+from pardem.config import DeckError, check_deck
+from pardem.io.deck_file import load_deck
 from pardem.drivers.cli import (EXIT_OK, add_study_options, agree, driver_parser, option_number,
                                 option_numbers, output_dir, plain_json, run_driver, study_restart)
 from pardem.io.records import RecordLog, start_study_folder

@@ -8,10 +8,10 @@ so that a deck is refused only when the run certainly cannot work: element count
 steps are bounds taken on the safe side (see each function).
 """
 import math
-import os
 import sys
 
 from pardem.config import DeckError, Field, _short, number
+from pardem.io.machine import available_memory
 
 # The watchdog (pardem.parallel.watchdog) checks every rank once per period of min(1 s, limit / 10)
 # and gives a rank falling silent a grace of max(3 periods, 2 s) before judging it (a compiled call
@@ -114,22 +114,6 @@ def state_bytes():
 # ordered lattices of 1,728 to 35,937 elements is 1,710-1,780 bytes per element, 345 + 3 x 233 of
 # them the state (tests/test_fuzz_decks.py checks the estimate against it).
 BUILD_BYTES_PER_ELEMENT = 1000
-
-
-def available_memory():
-    """Bytes of memory available to a new process on this machine (``MemAvailable`` of
-    /proc/meminfo, else the free physical pages), or None when unknown."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
 
 
 def fmt(x):

@@ -11,7 +11,7 @@ import sys
 
 import numpy as np
 
-from pardem.config import load_deck
+from pardem.io.deck_file import load_deck
 from pardem.parallel.communicator import Communicator
 from pardem.protocols import triaxial
 

@@ -63,7 +63,7 @@ def choose(package_dir, environ=os.environ):
 def configure():
     """Set ``NUMBA_CACHE_DIR`` when Numba could cache nowhere (see the module's docstring); also
     in Numba's live configuration when Numba was imported before pardem."""
-    path = choose(os.path.dirname(os.path.abspath(__file__)))
+    path = choose(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))   # the pardem package
     if path is None:
         return None
     os.environ["NUMBA_CACHE_DIR"] = path
