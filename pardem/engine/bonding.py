@@ -9,10 +9,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from pardem.physics import anisotropy
+from pardem.physics.arguments import choice, is_real, keywords, real, short
 from pardem.physics.beam import rotation_damping_table
 from pardem.engine.state import Bonds
 
 
+@keywords("BeamMaterial")
 @dataclass(frozen=True)
 class BeamMaterial:
     """young [Pa] and radius_ratio (r = ratio * mean(R1, R2)): scalar or (L, R, T) values.
@@ -33,6 +35,21 @@ class BeamMaterial:
     densification_stress: float = 0.0
     densification_p0: float = 0.0
 
+    def __post_init__(self):
+        # the fields are kept as given (their bits reach the bonds); only checked here
+        choice("BeamMaterial.law", self.law, tuple(anisotropy.LAWS))
+        _per_axis("BeamMaterial.young", self.young, "[Pa]", positive=True)
+        _per_axis("BeamMaterial.radius_ratio", self.radius_ratio, "(bond radius / mean element radius)",
+                  positive=True)
+        # G = E / (2 (1 + nu)) needs nu > -1; the deck's range (-1, 0.5) (pardem.config)
+        real("BeamMaterial.poisson", self.poisson, lo=-1.0, hi=0.5)
+        real("BeamMaterial.damping", self.damping, lo=0.0, lo_open=False, note="damping ratio zeta of each mode")
+        _per_axis("BeamMaterial.tensile_strength", self.tensile_strength, "[Pa]", positive=False)
+        _per_axis("BeamMaterial.shear_strength", self.shear_strength, "[Pa]", positive=False)
+        real("BeamMaterial.densification_stress", self.densification_stress, lo=0.0, lo_open=False,
+             unit="[Pa]", note="0: elastic")
+        real("BeamMaterial.densification_p0", self.densification_p0, lo=0.0, lo_open=False)
+
     @property
     def breakable(self):
         return bool(np.any(np.asarray(self.tensile_strength) > 0.0)
@@ -41,6 +58,24 @@ class BeamMaterial:
     @property
     def densifies(self):
         return self.densification_stress > 0.0 and self.densification_p0 > 0.0
+
+
+def _per_axis(name, value, unit, positive):
+    """Check a scalar or (L, R, T) property: > 0 (``positive``) or a strength, >= 0 as a scalar (0:
+    unbreakable) and a triple all > 0 or all 0 (a zero axis among positive ones would make the
+    interpolating laws divide by zero)."""
+    note = "" if positive else "0: unbreakable"
+    if is_real(value):
+        real(name, value, lo=0.0, lo_open=positive, unit=unit, note=note)
+        return
+    if not (isinstance(value, (list, tuple)) and len(value) == 3
+            or isinstance(value, np.ndarray) and value.shape == (3,)):
+        raise ValueError(f"{name} = {short(value)}: expected one number or an (L, R, T) triple of numbers "
+                         f"{unit}")
+    vals = [real(f"{name}[{k}]", v, lo=0.0, lo_open=positive, unit=unit) for k, v in enumerate(value)]
+    if not positive and min(vals) == 0.0 < max(vals):
+        raise ValueError(f"{name} = {short(value)}: expected all three values > 0 {unit}, or 0 (a single "
+                         "number) for no threshold")
 
 
 def _reference_normal(n):

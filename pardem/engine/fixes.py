@@ -43,19 +43,25 @@ import weakref
 
 import numpy as np
 
+from pardem.physics.arguments import array, keywords, short
+
 _AXES = "xyz"
 
 
 def _gid_array(gids, name="gids"):
     """Unique global ids as a 1-D int64 array (order kept), or ValueError."""
-    arr = np.asarray(gids)
+    try:
+        arr = np.asarray(gids)
+    except (TypeError, ValueError):   # ragged nesting
+        raise ValueError(f"{name} must be a non-empty 1-D sequence of element global ids, got "
+                         f"{short(gids)}") from None
     if arr.ndim == 0:
         arr = arr.reshape(1)
     if arr.ndim != 1 or arr.size == 0:
         raise ValueError(f"{name} must be a non-empty 1-D sequence of element global ids, got shape "
                          f"{np.shape(gids)}")
     if arr.dtype.kind not in "iu":
-        if arr.dtype.kind == "f" and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
+        if arr.dtype.kind == "f" and np.all(np.abs(arr) < 2.0**63) and np.all(arr == np.round(arr)):
             arr = arr.astype(np.int64)
         else:
             raise ValueError(f"{name} must be integer global ids (elements.gid), got dtype {arr.dtype}")
@@ -80,14 +86,14 @@ def _dof_mask(dofs, name):
 
 def _vectors(value, n, name, unit):
     """A [3] vector for every chosen element: ``value`` of shape [3] or [n, 3], finite."""
-    arr = np.asarray(value, dtype=np.float64)
+    arr = array(name, value, unit)
     if arr.shape == (3,):
         arr = np.broadcast_to(arr, (n, 3))
     elif arr.shape != (n, 3):
         raise ValueError(f"{name} must have shape (3,) or ({n}, 3) (one row per gid) {unit}, got "
                          f"shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite {unit}, got {value!r}")
+        raise ValueError(f"{name} must be finite {unit}, got {short(value)}")
     return np.ascontiguousarray(arr)
 
 
@@ -191,13 +197,15 @@ class _Load:
             self._order_checked = key
 
 
+@keywords("Gravity")
 class Gravity(_Load):
     """Uniform acceleration ``g`` [m/s^2] (shape [3], default ``(0, 0, -9.81)``): ``f += m g`` on
     every owned element."""
     def __init__(self, g=(0.0, 0.0, -9.81)):
-        g = np.asarray(g, dtype=np.float64)
+        g_in = g
+        g = array("g", g, "[m/s^2]")
         if g.shape != (3,) or not np.all(np.isfinite(g)):
-            raise ValueError(f"g must be a finite vector of shape (3,) [m/s^2], got {g!r}")
+            raise ValueError(f"g must be a finite vector of shape (3,) [m/s^2], got {short(g_in)}")
         self.g = g
 
     def post_force(self, sim):
@@ -207,6 +215,7 @@ class Gravity(_Load):
         e.f[:n] += e.mass[:n, None] * self.g
 
 
+@keywords("ExternalForce")
 class ExternalForce(_Load):
     """Constant force ``force`` [N] and optional torque ``torque`` [N m] (about the element's
     centre) on the elements of global ids ``gids`` [k].
@@ -229,6 +238,7 @@ class ExternalForce(_Load):
             e.t[rows] += self.torque[idx]
 
 
+@keywords("Clamp")
 class Clamp:
     """Fixed degrees of freedom of the elements of global ids ``gids`` [k].
 
@@ -270,6 +280,7 @@ class Clamp:
             e.w[sub] = 0.0
 
 
+@keywords("PrescribedVelocity")
 class PrescribedVelocity:
     """Imposed velocity ``velocity`` [m/s] (and optional ``angular_velocity`` [rad/s], world frame)
     of the elements of global ids ``gids`` [k].

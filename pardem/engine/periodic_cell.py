@@ -35,6 +35,7 @@ the caller.
 import numpy as np
 from numba import njit
 
+from pardem.physics.arguments import is_real, keywords, real, short, vector3
 from pardem.physics.contact_frame import any_rate
 
 
@@ -56,6 +57,18 @@ def _wrap(x, n, lo, length, periodic):
                     x[k, d] -= m * length[d]
 
 
+def _flags(name, value):
+    """Three booleans (bools, or the integers 0 and 1) as a bool array [3], or ValueError naming
+    ``name`` (``bool("no")`` would be True: strings are refused)."""
+    items = list(value) if isinstance(value, (list, tuple)) or (isinstance(value, np.ndarray)
+                                                                and value.ndim == 1) else []
+    if len(items) != 3 or not all(isinstance(p, (bool, np.bool_))
+                                  or (is_real(p) and not isinstance(p, float) and p in (0, 1)) for p in items):
+        raise ValueError(f"{name} = {short(value)}: expected 3 booleans (one per axis x, y, z)")
+    return np.array([bool(p) for p in items], dtype=np.bool_)
+
+
+@keywords("PeriodicCell")
 class PeriodicCell:
     """Box ``lo`` [3] [m] with edges ``length`` [3] [m]; ``periodic`` [3] bools.
 
@@ -67,22 +80,25 @@ class PeriodicCell:
     """
 
     def __init__(self, lo, length, periodic, rate=(0.0, 0.0, 0.0), servo=None, dimension=3):
-        self.lo = np.asarray(lo, dtype=np.float64).copy()
-        self.length = np.asarray(length, dtype=np.float64).copy()
-        self.periodic = np.array([bool(p) for p in periodic], dtype=np.bool_)
-        self.rate = np.asarray(rate, dtype=np.float64).copy()
-        if dimension not in (2, 3) or isinstance(dimension, bool):
-            raise ValueError(f"cell dimension = {dimension!r}: expected 2 or 3")
+        self.lo = vector3("cell.lo", lo, "[m] (the box's lower corner)").copy()
+        self.length = vector3("cell.length", length, "[m]").copy()
+        self.periodic = _flags("cell.periodic", periodic)
+        self.rate = vector3("cell.rate", rate, "[1/s]").copy()
+        if isinstance(dimension, (bool, np.bool_)) or not is_real(dimension) or dimension not in (2, 3):
+            raise ValueError(f"cell dimension = {short(dimension)}: expected 2 or 3")
         self.dimension = int(dimension)
         if self.dimension == 2 and self.periodic[2]:
             raise ValueError("a 2D cell is not periodic along z (the grains lie in the plane z = 0)")
         if np.any(self.rate[~self.periodic] != 0.0):
             raise ValueError("cell.rate: a strain rate needs a periodic axis (non-periodic axes take 0)")
         if not np.all(self.length > 0.0):
-            raise ValueError(f"cell.length must be positive along every axis, got {list(self.length)}")
+            raise ValueError(f"cell.length must be positive along every axis, got {list(self.length)}: "
+                             f"expected 3 finite edges in (0, inf) [m]")
         if servo is None:
             self.servo = None
         elif isinstance(servo, dict):
+            if not all(isinstance(k, str) for k in servo):
+                raise ValueError(f"cell.servo = {short(servo)}: a triaxial servo's keys are names (strings)")
             self.servo = self.triaxial_servo(**{k: v for k, v in servo.items() if k != "kind"})
             if self.dimension == 2:
                 if self.servo["axis"] == 2:
@@ -92,6 +108,13 @@ class PeriodicCell:
             elif not np.all(self.periodic):
                 raise ValueError("a triaxial servo needs a cell periodic along every axis")
         else:
+            if not (isinstance(servo, (list, tuple)) or isinstance(servo, np.ndarray) and servo.ndim == 1) \
+                    or len(servo) != 3:
+                raise ValueError(f"cell.servo = {short(servo)}: expected None, (p0 [Pa], gain [1/(Pa s)], "
+                                 "max_rate [1/s]) or the dict of PeriodicCell.triaxial_servo")
+            real("cell.servo p0", servo[0], unit="[Pa]", note="target pressure")
+            real("cell.servo gain", servo[1], lo=0.0, unit="[1/(Pa s)]")
+            real("cell.servo max_rate", servo[2], lo=0.0, unit="[1/s]")
             self.servo = tuple(float(v) for v in servo)
         self.servo_stiffness = 0.0   # S [Pa] of the isotropic servo's gain cap (0: no cap)
         self.strain = np.zeros(3)   # accumulated log strain of the edges since the start
@@ -152,20 +175,19 @@ class PeriodicCell:
         return shifts * np.where(self.periodic, self.length, 0.0)
 
     @staticmethod
+    @keywords("PeriodicCell.triaxial_servo")
     def triaxial_servo(axis, axial_rate, pressure, gain, max_rate):
         """The ``servo`` of a triaxial test: ``axis`` (0, 1, 2) deforms at ``axial_rate`` [1/s]
         (negative: compression), the two other axes hold their normal stress at ``-pressure``
         [Pa] (``pressure`` = pc > 0, compression) with ``gain`` [1/(Pa s)], ``|rate| <= max_rate``
         [1/s]."""
+        if not is_real(axis) or axis not in (0, 1, 2):
+            raise ValueError(f"triaxial servo: axis = {short(axis)}: expected 0, 1 or 2")
         axis = int(axis)
-        if axis not in (0, 1, 2):
-            raise ValueError(f"triaxial servo: axis = {axis}: expected 0, 1 or 2")
-        vals = {"axial_rate": axial_rate, "pressure": pressure, "gain": gain, "max_rate": max_rate}
-        for k, v in vals.items():
-            if not np.isfinite(float(v)):
-                raise ValueError(f"triaxial servo: {k} = {v}: expected a finite number")
-        if not (float(gain) > 0.0 and float(max_rate) > 0.0 and float(pressure) >= 0.0):
-            raise ValueError("triaxial servo: gain and max_rate must be > 0, pressure >= 0")
+        real("triaxial servo: axial_rate", axial_rate, unit="[1/s]", note="negative: compression")
+        real("triaxial servo: pressure", pressure, lo=0.0, lo_open=False, unit="[Pa]")
+        real("triaxial servo: gain", gain, lo=0.0, unit="[1/(Pa s)]")
+        real("triaxial servo: max_rate", max_rate, lo=0.0, unit="[1/s]")
         return {"kind": "triaxial", "axis": axis, "axial_rate": float(axial_rate),
                 "pressure": float(pressure), "gain": float(gain), "max_rate": float(max_rate)}
 

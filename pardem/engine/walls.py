@@ -43,10 +43,12 @@ import numpy as np
 
 from pardem.engine.critical_step import critical_time_step_of
 from pardem.physics import walls as wall_kernels
+from pardem.physics.arguments import array, keywords, real, short
 
 WALL_OVERLAP_BOUND = 0.05   # Hertz walls: the critical time step holds up to this overlap / R
 
 
+@keywords("Walls")
 class Walls:
     """Planar walls (see the module docstring).
 
@@ -56,26 +58,27 @@ class Walls:
     """
 
     def __init__(self, normals, points, law, velocities=None, time0=0.0):
-        normals = np.array(normals, dtype=np.float64)
+        normals = array("normals", normals).copy()
         if normals.ndim == 1:
             normals = normals.reshape(1, -1)
         if normals.ndim != 2 or normals.shape[1] != 3 or normals.shape[0] < 1:
             raise ValueError(f"normals must have shape (n_walls, 3) with n_walls >= 1, got {normals.shape}")
         n = normals.shape[0]
-        length = np.linalg.norm(normals, axis=1)
+        with np.errstate(over="ignore"):   # an overflowing norm is refused below
+            length = np.linalg.norm(normals, axis=1)
         if not np.all(np.isfinite(length)) or np.any(length <= 0.0):
             raise ValueError(f"normals must be finite non-zero vectors (inward wall normals), got {normals.tolist()}")
         normals /= length[:, None]
         # exact axis-aligned normals let the kernel read one coordinate per row
         aligned = np.isclose(np.abs(normals), 1.0, rtol=0, atol=1e-15)
         normals[aligned] = np.sign(normals[aligned])
-        points = np.array(points, dtype=np.float64)
+        points = array("points", points, "[m]").copy()
         if points.shape == (3,) and n == 1:
             points = points.reshape(1, 3)
         if points.shape != (n, 3) or not np.all(np.isfinite(points)):
             raise ValueError(f"points must be finite with shape ({n}, 3) (one point per wall) [m], got "
                              f"shape {np.shape(points)}")
-        vel = np.zeros((n, 3)) if velocities is None else np.array(velocities, dtype=np.float64)
+        vel = np.zeros((n, 3)) if velocities is None else array("velocities", velocities, "[m/s]").copy()
         if vel.shape == (3,):
             vel = np.tile(vel, (n, 1))
         if vel.shape != (n, 3) or not np.all(np.isfinite(vel)):
@@ -83,6 +86,7 @@ class Walls:
                              f"{vel.shape}")
         if not isinstance(law, wall_kernels.Params):
             raise ValueError(f"law must be a pardem.physics.walls.Params, got {type(law).__name__}")
+        real("time0", time0, unit="[s]")
         self.law = law
         self.normals = np.ascontiguousarray(normals)
         self.offsets0 = np.einsum("wd,wd->w", normals, points)
@@ -136,20 +140,40 @@ class Walls:
         return max(wall_kernels.stiffness(self.law, radius, 0.0))
 
 
+@keywords("wall_law")
 def wall_law(law="linear", stiffness=None, young=None, poisson=None, restitution=1.0, friction=0.0,
-             wall_young=math.inf, **extra):
+             wall_young=None, **extra):
     """``pardem.physics.walls.Params`` from keywords: linear law with ``stiffness`` [N/m], or Hertz
-    with the elements' ``young`` [Pa] and ``poisson`` against a wall of ``wall_young`` (rigid by
-    default)."""
+    with the elements' ``young`` [Pa] and ``poisson`` against a wall of ``wall_young`` [Pa] (None:
+    ``math.inf``, rigid). ``extra``: the other keywords of ``walls.Params`` (``kt``, ``tangential_damping`` for the
+    linear law, ``wall_poisson`` for Hertz). ValueError naming the argument for a bad value, an
+    unknown keyword or one of the other law."""
+    if not isinstance(law, str) or law not in ("linear", "hertz"):
+        raise ValueError(f"law = {short(law)}: expected 'linear' or 'hertz' (or a pardem.physics.walls.Params)")
+    own = {"linear": ("stiffness", "kt", "tangential_damping"),
+           "hertz": ("young", "poisson", "wall_young", "wall_poisson")}
+    names = ("law", "stiffness", "young", "poisson", "restitution", "friction", "wall_young",
+             "kt", "wall_poisson", "tangential_damping")
+    for key in extra:
+        if key not in names:
+            raise ValueError(f"wall_law() got an unexpected keyword {key!r}: valid names are {', '.join(names)}")
+    given = {"stiffness": stiffness, "young": young, "poisson": poisson, "wall_young": wall_young, **extra}
+    other = own["hertz" if law == "linear" else "linear"]
+    for key in other:
+        if given.get(key) is not None:
+            raise ValueError(f"{key} = {short(given[key])} applies to law = "
+                             f"{'hertz' if law == 'linear' else 'linear'!r} only, not to law = {law!r}")
     if law == "linear":
-        if stiffness is None or not (np.isscalar(stiffness) and np.isfinite(stiffness) and stiffness > 0):
-            raise ValueError(f"stiffness must be a positive number [N/m] for a linear wall law, got {stiffness!r}")
+        try:
+            real("stiffness", stiffness, lo=0.0, unit="[N/m]")
+        except ValueError:
+            raise ValueError(f"stiffness must be a positive number [N/m] for a linear wall law (in (0, inf)), "
+                             f"got {short(stiffness)}") from None
         return wall_kernels.Params(law="linear", kn=stiffness, restitution=restitution, friction=friction,
                                    **extra)
-    if law == "hertz":
-        return wall_kernels.Params(law="hertz", young=young, poisson=poisson, wall_young=wall_young,
-                                   restitution=restitution, friction=friction, **extra)
-    raise ValueError(f"law must be 'linear' or 'hertz' (or a pardem.physics.walls.Params), got {law!r}")
+    return wall_kernels.Params(law="hertz", young=young, poisson=poisson,
+                               wall_young=math.inf if wall_young is None else wall_young,
+                               restitution=restitution, friction=friction, **extra)
 
 
 def add_walls(sim, normals, points, velocities=None, law="linear", check_dt=True, **law_keywords):

@@ -31,6 +31,7 @@ from typing import Protocol
 import numpy as np
 
 from pardem.physics import hertz_mindlin, hertz_mindlin_rolling, linear_contact
+from pardem.physics.arguments import short
 
 LAWS = {
     "hertz_mindlin": hertz_mindlin,
@@ -88,15 +89,21 @@ class ContactLaw(Protocol):
 
 
 def law(name) -> ContactLaw:
-    """The registry row of law ``name``; ValueError for an unknown name."""
-    if name not in LAWS:
-        raise ValueError(f"contact law {name!r}: expected one of {', '.join(LAWS)}")
+    """The registry row of law ``name``; ValueError for an unknown name (listing the known ones)."""
+    if not isinstance(name, str) or name not in LAWS:
+        raise ValueError(f"contact law {short(name)}: expected one of {', '.join(LAWS)}")
     return LAWS[name]
 
 
 def law_params(name, params):
-    """The ``Params`` of law ``name`` from a dict (checked there)."""
-    return law(name).Params(**params)
+    """The ``Params`` of law ``name`` from a dict of its keywords (checked there: an unknown key
+    lists the valid ones)."""
+    row = law(name)
+    if not isinstance(params, dict) or not all(isinstance(k, str) for k in params):
+        raise ValueError(f"params of contact law {name!r} must be a dict of "
+                         f"{row.__name__.rsplit('.', 1)[-1]}.Params keywords (names as strings), got "
+                         f"{short(params)}")
+    return row.Params(**params)
 
 
 def critical_time_step(name, params, radii, density):

@@ -98,6 +98,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
+from pardem.physics.arguments import keywords, real
 from pardem.physics.contact_frame import carry_force, clear_history, update_history
 from pardem.physics.pair_loop import law_interface, touching
 from pardem.physics.timestep import rayleigh_time_step
@@ -217,6 +218,7 @@ def tsuji_damping_coefficient(restitution):
 # ---------------------------------------------------------------------------------------------
 # parameters and the per-pair law
 
+@keywords("hertz_mindlin.Params")
 @dataclass(frozen=True)
 class Params:
     """Hertz-Mindlin contact parameters.
@@ -245,22 +247,18 @@ class Params:
     cemented: bool = field(init=False)
 
     def __post_init__(self):
-        for name in ("young", "young2"):
-            val = getattr(self, name)
-            if val is not None and not (np.isfinite(val) and val > 0.0):
-                raise ValueError(f"hertz_mindlin.{name} must be a positive number [Pa], got {val}")
-        for name in ("poisson", "poisson2"):
-            val = getattr(self, name)
-            if val is not None and not (-1.0 < val < 0.5):
-                raise ValueError(f"hertz_mindlin.{name} must be in (-1, 0.5), got {val}")
-        if not (np.isfinite(self.friction) and self.friction >= 0.0):
-            raise ValueError(f"hertz_mindlin.friction must be >= 0, got {self.friction}")
-        if not (0.0 < self.restitution <= 1.0):
-            raise ValueError(f"hertz_mindlin.restitution must be in (0, 1], got {self.restitution}")
-        for name in ("cement_normal", "cement_tangential", "cement_fade_time"):
-            val = getattr(self, name)
-            if not (np.isfinite(val) and val >= 0.0):
-                raise ValueError(f"hertz_mindlin.{name} must be a number >= 0, got {val}")
+        # Poisson ratio: (-1, 0.5), the deck's range (pardem.config); the moduli need nu > -1
+        real("hertz_mindlin.young", self.young, lo=0.0, unit="[Pa]")
+        real("hertz_mindlin.poisson", self.poisson, lo=-1.0, hi=0.5)
+        if self.young2 is not None:
+            real("hertz_mindlin.young2", self.young2, lo=0.0, unit="[Pa]", note="None: young")
+        if self.poisson2 is not None:
+            real("hertz_mindlin.poisson2", self.poisson2, lo=-1.0, hi=0.5, note="None: poisson")
+        real("hertz_mindlin.friction", self.friction, lo=0.0, lo_open=False, note="Coulomb coefficient")
+        real("hertz_mindlin.restitution", self.restitution, lo=0.0, hi=1.0, hi_open=False)
+        for name, unit in (("cement_normal", "[N/m]"), ("cement_tangential", "[N/m]"),
+                           ("cement_fade_time", "[s]")):
+            real(f"hertz_mindlin.{name}", getattr(self, name), lo=0.0, lo_open=False, unit=unit)
         if self.cement_tangential > 0.0 and self.cement_normal == 0.0:
             raise ValueError("hertz_mindlin.cement_tangential > 0 needs cement_normal > 0 [N/m]")
         e_star, g_star = effective_moduli(self.young, self.poisson, self.young2, self.poisson2)

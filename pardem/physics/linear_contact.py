@@ -49,6 +49,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
+from pardem.physics.arguments import keywords, real
 from pardem.physics.contact_frame import coulomb_cap, update_history
 from pardem.physics.pair_loop import law_interface, touching
 from pardem.physics.timestep import linear_contact_time_step
@@ -57,7 +58,7 @@ from pardem.physics.timestep import linear_contact_time_step
 def restitution(zeta):
     """Restitution coefficient of the no-tension linear spring-dashpot with damping ratio ``zeta``."""
     z = float(zeta)
-    if z < 0.0:
+    if not z >= 0.0:   # NaN too
         raise ValueError(f"damping ratio must be >= 0, got {z}")
     if z == 0.0:
         return 1.0
@@ -96,6 +97,7 @@ def textbook_damping_ratio(e):
     return float(-le / np.sqrt(np.pi**2 + le * le))
 
 
+@keywords("linear_contact.Params")
 @dataclass(frozen=True)
 class Params:
     """Linear spring-dashpot parameters.
@@ -117,17 +119,14 @@ class Params:
 
     def __post_init__(self):
         for name in ("kn", "kt"):
-            val = getattr(self, name)
-            if not (np.isfinite(val) and val > 0.0):
-                raise ValueError(f"linear_contact.{name} must be a positive stiffness [N/m], got {val}")
-        if not (np.isfinite(self.friction) and self.friction >= 0.0):
-            raise ValueError(f"linear_contact.friction must be >= 0, got {self.friction}")
-        if not (0.0 < self.restitution <= 1.0):
-            raise ValueError(f"linear_contact.restitution must be in (0, 1], got {self.restitution}")
+            real(f"linear_contact.{name}", getattr(self, name), lo=0.0, unit="[N/m]")
+        real("linear_contact.friction", self.friction, lo=0.0, lo_open=False, note="Coulomb coefficient")
+        real("linear_contact.restitution", self.restitution, lo=0.0, hi=1.0, hi_open=False)
+        if self.tangential_damping is not None:
+            real("linear_contact.tangential_damping", self.tangential_damping, lo=0.0, lo_open=False,
+                 note="damping ratio zeta_t; None: zeta_n")
         zn = damping_ratio(self.restitution)
         zt = zn if self.tangential_damping is None else float(self.tangential_damping)
-        if not (np.isfinite(zt) and zt >= 0.0):
-            raise ValueError(f"linear_contact.tangential_damping must be >= 0, got {zt}")
         object.__setattr__(self, "zeta_n", zn)
         object.__setattr__(self, "zeta_t", zt)
         object.__setattr__(self, "damped", zn > 0.0 or zt > 0.0)

@@ -72,13 +72,13 @@ chosen once at setup); ``single`` gives the loads of one element-wall pair (diag
 ``stiffness`` the tangent normal and tangential stiffness of a contact (for the critical time step).
 """
 import math
-import numbers
 from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
 from numba import njit
 
+from pardem.physics.arguments import choice, keywords, real
 from pardem.physics.contact_frame import update_history
 from pardem.physics.hertz_mindlin import (effective_moduli, hertz_damping_coefficient, hertz_normal,
                                           mindlin_stiffness, unload_rescale)
@@ -87,10 +87,7 @@ from pardem.physics.linear_contact import damping_ratio, linear_normal, linear_t
 LAWS = ("linear", "hertz")
 
 
-def _real(val):
-    return isinstance(val, numbers.Real) and not isinstance(val, bool) and not math.isnan(val)
-
-
+@keywords("walls.Params")
 @dataclass(frozen=True)
 class Params:
     """Element-wall contact parameters of one wall set.
@@ -123,37 +120,36 @@ class Params:
     frictional: bool = field(init=False)
 
     def __post_init__(self):
-        if self.law not in LAWS:
-            raise ValueError(f"walls.law must be one of {', '.join(LAWS)}, got {self.law!r}")
+        choice("walls.law", self.law, LAWS)
         mu = self.friction
-        if not (_real(mu) and math.isfinite(mu) and mu >= 0.0):
-            raise ValueError(f"walls.friction must be a number >= 0, got {mu}")
+        real("walls.friction", mu, lo=0.0, lo_open=False, note="Coulomb coefficient")
         e = self.restitution
-        if not (_real(e) and 0.0 < e <= 1.0):
-            raise ValueError(f"walls.restitution must be in (0, 1], got {e}")
+        real("walls.restitution", e, lo=0.0, hi=1.0, hi_open=False)
+        # a field of the other law would be silently ignored: refused instead
+        other = ("young", "poisson", "wall_young", "wall_poisson") if self.law == "linear" else \
+            ("kn", "kt", "tangential_damping")
+        for name in other:
+            if getattr(self, name) is not None:
+                raise ValueError(f"walls.{name} = {getattr(self, name)!r} applies to the "
+                                 f"{'hertz' if self.law == 'linear' else 'linear'} law only, not to "
+                                 f"law {self.law!r} (leave it None)")
         if self.law == "linear":
             kt = self.kn if self.kt is None else self.kt
-            for name, val in (("kn", self.kn), ("kt", kt)):
-                if not (_real(val) and math.isfinite(val) and val > 0.0):
-                    raise ValueError(f"walls.{name} must be a positive stiffness [N/m], got {val}")
+            real("walls.kn", self.kn, lo=0.0, unit="[N/m]")
+            real("walls.kt", kt, lo=0.0, unit="[N/m]", note="None: kn")
             zn = damping_ratio(e)
             zt = zn if self.tangential_damping is None else self.tangential_damping
-            if not (_real(zt) and math.isfinite(zt) and zt >= 0.0):
-                raise ValueError(f"walls.tangential_damping must be a ratio >= 0, got {zt}")
+            real("walls.tangential_damping", zt, lo=0.0, lo_open=False,
+                 note="damping ratio zeta_t; None: zeta_n")
             derived = (float(self.kn), float(kt), zn, float(zt), zn > 0.0 or zt > 0.0)
         else:
             wy = self.young if self.wall_young is None else self.wall_young
             wp = self.poisson if self.wall_poisson is None else self.wall_poisson
-            for name, val, finite in (("young", self.young, True), ("wall_young", wy, False)):
-                if not (_real(val) and val > 0.0 and (math.isfinite(val) or not finite)):
-                    unit = "[Pa]" if finite else "[Pa] (inf: rigid wall)"
-                    raise ValueError(f"walls.{name} must be a positive number {unit}, got {val}")
-            for name, val in (("poisson", self.poisson), ("wall_poisson", wp)):
-                if not (_real(val) and -1.0 < val < 0.5):
-                    raise ValueError(f"walls.{name} must be in (-1, 0.5), got {val}")
-            if self.tangential_damping is not None:
-                raise ValueError("walls.tangential_damping applies to the linear law only, got "
-                                 f"{self.tangential_damping} with law 'hertz'")
+            real("walls.young", self.young, lo=0.0, unit="[Pa]")
+            real("walls.wall_young", wy, lo=0.0, unit="[Pa]", inf=True, note="inf: rigid wall; None: young")
+            # Poisson ratio: (-1, 0.5), the deck's range (pardem.config)
+            real("walls.poisson", self.poisson, lo=-1.0, hi=0.5)
+            real("walls.wall_poisson", wp, lo=-1.0, hi=0.5, note="None: poisson")
             e_star, g_star = effective_moduli(self.young, self.poisson, wy, wp)
             derived = (e_star, g_star, hertz_damping_coefficient(e), 0.0, e < 1.0)
         for name, val in zip(("stiff_n", "stiff_t", "damp_n", "damp_t", "damped"), derived):
