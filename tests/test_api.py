@@ -67,12 +67,12 @@ def test_dt_above_the_critical_step_is_refused(comm):
 
 
 @pytest.mark.parametrize("kw, message", [
-    ({"positions": [[0, 0]]}, "positions must have shape \\(n, 3\\)"),
+    ({"positions": [[0, 0]]}, "positions must be finite with shape \\(n, 3\\)"),
     ({"radii": [R, R, R]}, "radii must be a scalar or have shape"),
     ({"radii": -R}, "radii must be finite and > 0"),
     ({"density": 0.0}, "density must be"),
-    ({"pairs": [[0, 2]]}, "pairs must index particles 0 .. 1"),
-    ({"pairs": [[0, 0]]}, "two different particles"),
+    ({"pairs": [[0, 2]]}, "pairs must index elements 0 .. 1"),
+    ({"pairs": [[0, 0]]}, "two different elements"),
     ({"pairs": [[0, 1], [1, 0]]}, "same bond twice"),
     ({"pairs": [[0.0, 1.0]]}, "pairs must be integer"),
     ({"frame": np.ones((3, 3))}, "frame must be a \\(3, 3\\) orthonormal"),

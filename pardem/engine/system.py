@@ -26,11 +26,12 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
+from pardem.engine import inputs
 from pardem.engine.bonding import BeamMaterial, make_bonds
 from pardem.engine.contacts import Contacts
 from pardem.engine.critical_step import contact_law_name, critical_time_step_of
 from pardem.engine.periodic_cell import PeriodicCell
-from pardem.engine.plane import PlaneConstraint, check_dimension, in_plane, planar, plane_of
+from pardem.engine.plane import PlaneConstraint, check_dimension, in_plane, plane_of
 from pardem.engine.simulation import Simulation
 from pardem.engine.state import Bonds, Elements
 from pardem.engine.walls import Walls, add_walls
@@ -246,79 +247,11 @@ def _jsonable(value):
     return value
 
 
-# -- checks of the particle arrays -------------------------------------------------------------
-
 def _positive(value, name, unit):
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
             or not (math.isfinite(value) and value > 0.0):
         raise ValueError(f"{name} must be a finite number > 0 {unit}, got {value!r}")
     return float(value)
-
-
-def _positions(positions, name):
-    try:
-        x = np.array(positions, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be an array of shape (n, 3) [m] of numbers") from None
-    if x.ndim != 2 or x.shape[1] != 3 or len(x) < 1:
-        raise ValueError(f"{name} must have shape (n, 3) with n >= 1 [m], got shape {x.shape}")
-    if not np.all(np.isfinite(x)):
-        raise ValueError(f"{name} must be finite [m]: row {int(np.nonzero(~np.isfinite(x).all(axis=1))[0][0])} is not")
-    return np.ascontiguousarray(x)
-
-
-def _radii(radii, n, name):
-    try:
-        r = np.array(radii, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number or an array of shape ({n},) [m]") from None
-    if r.shape not in ((), (n,)):
-        raise ValueError(f"{name} must be a scalar or have shape ({n},) (one per position) [m], got shape {r.shape}")
-    r = np.ascontiguousarray(np.broadcast_to(r, (n,)))
-    if not np.all(np.isfinite(r) & (r > 0.0)):
-        raise ValueError(f"{name} must be finite and > 0 [m], got min {float(np.min(r))!r}")
-    return r
-
-
-def _vectors(value, n, name, unit):
-    if value is None:
-        return None
-    try:
-        v = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be an array of shape ({n}, 3) {unit}") from None
-    if v.shape != (n, 3) or not np.all(np.isfinite(v)):
-        raise ValueError(f"{name} must be finite with shape ({n}, 3) {unit}, got shape {v.shape}")
-    return v
-
-
-def _pairs(pairs, n, name):
-    p = np.asarray(pairs)
-    if p.size == 0:
-        p = np.zeros((0, 2), np.int64)
-    if p.ndim != 2 or p.shape[1] != 2 or p.dtype.kind not in "iu":
-        raise ValueError(f"{name} must be integer indices of shape (b, 2) into the positions, got "
-                         f"{p.dtype} shape {p.shape}")
-    p = p.astype(np.int64)
-    if len(p) and (p.min() < 0 or p.max() >= n):
-        raise ValueError(f"{name} must index particles 0 .. {n - 1}, got values in [{p.min()}, {p.max()}]")
-    if np.any(p[:, 0] == p[:, 1]):
-        raise ValueError(f"{name} must join two different particles (a row has twice the same index)")
-    p = np.sort(p, axis=1)
-    p = p[np.lexsort((p[:, 1], p[:, 0]))]
-    if len(p) > 1 and np.any(np.all(p[1:] == p[:-1], axis=1)):
-        raise ValueError(f"{name} must not list the same bond twice")
-    return p
-
-
-def _frame(frame, name):
-    if frame is None:
-        return np.eye(3)
-    f = np.asarray(frame, dtype=np.float64)
-    if f.shape != (3, 3) or not np.allclose(f @ f.T, np.eye(3), atol=1e-9):
-        raise ValueError(f"{name} must be a (3, 3) orthonormal matrix whose rows are the material axes L, R, T "
-                         f"in world coordinates, got {f.tolist()}")
-    return f
 
 
 # -- the builder ----------------------------------------------------------------------------
@@ -342,8 +275,8 @@ def build(comm, system):
     integ, dec = system.integration, system.decomposition
     x, r, density = _particle_arrays(p, dim)
     n = len(x)
-    v0 = _vectors(p.velocities, n, "Particles.velocities", "[m/s]")
-    w0 = _vectors(p.angular_velocities, n, "Particles.angular_velocities", "[rad/s]")
+    v0 = inputs.check_vectors(p.velocities, n, "Particles.velocities", "[m/s]")
+    w0 = inputs.check_vectors(p.angular_velocities, n, "Particles.angular_velocities", "[rad/s]")
     if dim == 2:
         v0 = in_plane(v0, (2,), "Particles.velocities")
         w0 = in_plane(w0, (0, 1), "Particles.angular_velocities")
@@ -353,6 +286,12 @@ def build(comm, system):
         lo0, edge = cell.lo, cell.length
         x = np.where(cell.periodic, lo0 + np.mod(x - lo0, edge), x)
     pairs, material, frame = _bond_model(system.bonds, n)
+    # coincident centres, or unbonded spheres overlapping by more than half the smaller radius
+    # (minimum images in a periodic cell), are refused before any work
+    if cell is None:
+        inputs.check_overlaps(x, r, pairs)
+    else:
+        inputs.check_overlaps(x, r, pairs, cell.lo, cell.length, cell.periodic)
     if len(pairs) and cell is not None and np.any(cell.periodic):
         raise ValueError("System.bonds with a periodic Cell: bonds across a periodic boundary are not "
                          "supported; expected a cell without periodic axes, or no bonds")
@@ -369,10 +308,8 @@ def build(comm, system):
         else:
             contact_law(model.law)    # a known law, before any work
     _check_integration(integ)
-    skin = SKIN_RADII * float(r.mean()) if dec.skin is None else dec.skin
-    if not (isinstance(skin, (int, float, np.floating)) and math.isfinite(skin) and skin > 0.0):
-        raise ValueError(f"Decomposition.skin must be a finite length > 0 [m] (or None), got {dec.skin!r}")
-    skin = float(skin)
+    skin = SKIN_RADII * float(r.mean()) if dec.skin is None else _positive(dec.skin, "Decomposition.skin",
+                                                                           "[m] (or None: 0.2 mean radius)")
     slab_axis = _slab_axis(dec.slab_axis, x, r, dim)
 
     gids = np.arange(n, dtype=np.int64)
@@ -475,14 +412,13 @@ def build(comm, system):
 
 def _particle_arrays(p, dim):
     """Centres [n, 3], radii [n], density of ``p``, checked."""
-    if dim == 2:
-        x = planar(p.positions, "Particles.positions")
-    else:
-        x = p.positions
-    x = _positions(x, "Particles.positions")
-    r = _radii(p.radii, len(x), "Particles.radii")
-    density = _positive(p.density, "Particles.density", "[kg/m^3]")
-    return x, r, density
+    x = inputs.check_positions(p.positions, dim, "Particles.positions")
+    r = inputs.check_radii(p.radii, len(x), "Particles.radii")
+    density = inputs.check_density(p.density, len(x), "Particles.density")
+    if not np.isscalar(density):
+        raise ValueError("Particles.density must be one number [kg/m^3] for the system (one per particle is "
+                         "not supported yet)")
+    return x, r, float(density)
 
 
 def _cell(cell, radii, dim):
@@ -531,8 +467,9 @@ def _bond_model(bonds, n):
         raise ValueError(f"System.bonds must be a BondModel, got {type(bonds).__name__}")
     if not isinstance(bonds.material, BeamMaterial):
         raise ValueError(f"BondModel.material must be a pardem BeamMaterial, got {type(bonds.material).__name__}")
-    pairs = _pairs(np.zeros((0, 2), np.int64) if bonds.pairs is None else bonds.pairs, n, "BondModel.pairs")
-    return pairs, bonds.material, _frame(bonds.frame, "BondModel.frame")
+    pairs = inputs.check_pairs(np.zeros((0, 2), np.int64) if bonds.pairs is None else bonds.pairs, n,
+                               "BondModel.pairs")
+    return pairs, bonds.material, inputs.check_frame(bonds.frame, "BondModel.frame")
 
 
 def _check_integration(integ):
@@ -543,9 +480,7 @@ def _check_integration(integ):
         raise ValueError(f"Integration.dt_fraction must be a number in (0, 1], got {f!r}")
     if integ.dt is not None:
         _positive(integ.dt, "Integration.dt", "[s] (or None for dt_fraction of the critical step)")
-    c = integ.viscous_damping
-    if isinstance(c, bool) or not isinstance(c, (int, float, np.floating)) or not (math.isfinite(c) and c >= 0.0):
-        raise ValueError(f"Integration.viscous_damping must be a finite rate >= 0 [1/s], got {c!r}")
+    inputs.check_viscous_damping(integ.viscous_damping, "Integration.viscous_damping")
     _positive(integ.max_speed, "Integration.max_speed", "[m/s]")
     k = integ.check_every
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
