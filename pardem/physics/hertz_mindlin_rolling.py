@@ -191,6 +191,17 @@ def rolling_torque(i, j, s0, s1, s2, x, w, radius, hist, p, dt, g_star, mu_r, k_
     return True, m0, m1, m2, 0.5 * (m0 * m0 + m1 * m1 + m2 * m2) / k_r
 
 
+@njit(inline="always", cache=True)
+def _opposite_torques(t, i, j, m0, m1, m2):
+    """The rolling torque (m0, m1, m2) [N m] on row ``i`` and its opposite on row ``j``."""
+    t[i, 0] += m0
+    t[i, 1] += m1
+    t[i, 2] += m2
+    t[j, 0] -= m0
+    t[j, 1] -= m1
+    t[j, 2] -= m2
+
+
 @njit(cache=True, error_model="numpy")
 def _rolling_list(pi, pj, shift, periodic, x, w, radius, t, hist, dt, g_star, mu_r, k_fixed,
                   n_owned, with_energy, exact, xacc):
@@ -211,12 +222,7 @@ def _rolling_list(pi, pj, shift, periodic, x, w, radius, t, hist, dt, g_star, mu
                                              mu_r, k_fixed)
         if not acts:
             continue
-        t[i, 0] += m0
-        t[i, 1] += m1
-        t[i, 2] += m2
-        t[j, 0] -= m0
-        t[j, 1] -= m1
-        t[j, 2] -= m2
+        _opposite_torques(t, i, j, m0, m1, m2)
         if with_energy and i < n_owned:
             if exact:
                 ok &= exact_add(xacc, 9, e)
@@ -236,12 +242,7 @@ def _rolling_all_pairs(x, w, radius, t, hist_full, dt, g_star, mu_r, k_fixed):
             acts, m0, m1, m2, e = rolling_torque(i, j, 0.0, 0.0, 0.0, x, w, radius, hist_full[i],
                                                  j, dt, g_star, mu_r, k_fixed)
             if acts:
-                t[i, 0] += m0
-                t[i, 1] += m1
-                t[i, 2] += m2
-                t[j, 0] -= m0
-                t[j, 1] -= m1
-                t[j, 2] -= m2
+                _opposite_torques(t, i, j, m0, m1, m2)
                 energy += e
     return energy
 
