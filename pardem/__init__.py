@@ -18,7 +18,7 @@ A cantilever of 11 spheres, clamped at one end and loaded at the other::
     material = pardem.BeamMaterial(young=1e9, radius_ratio=0.5, poisson=0.3, damping=0.0)
     sim = pardem.bonded_system(comm, x, R, 1000.0, pairs, material, viscous_damping=270.0)
     pardem.add_fixes(sim, pardem.Clamp([0]), pardem.ExternalForce([n - 1], force=(0, 0, -1e-3)))
-    sim.run(30000, operations=[pardem.Log(every=10000)])
+    sim.run(30000, operations=[pardem.Log(trigger=10000)])
 
 Checkpoints of such a system: ``pardem.save(sim, "state.h5")`` (collective) and
 ``sim = pardem.load(comm, "state.h5")`` on any number of ranks (bit for bit on the rank count that

@@ -31,7 +31,7 @@ if a.checkpoint_at:
     start = case.constants["triaxial_reference"]["step"]
 
     class Write:
-        every = 1
+        trigger = 1
 
         def __call__(self, s):
             if s.step_count == start + k:
