@@ -35,6 +35,8 @@ def brute_cases():
         (Periodic(6) & After(50) & Before(200), lambda s: s % 6 == 0 and 50 < s < 200),
         (And([Periodic(2), Periodic(2, phase=1)]), lambda s: False),          # never together
         (And([Periodic(97), Periodic(89)]), lambda s: s % (97 * 89) == 0),   # beyond And's look-ahead
+        # from step 0 And's look-ahead gives up on step 128, just before the common step
+        (And([Not(Periodic(2)), Periodic(2) | At(129)]), lambda s: s == 129),
         (Not(Periodic(3)), lambda s: s % 3 != 0),
         (~After(20), lambda s: s <= 20),
         (~Never(), lambda s: True),
