@@ -3,8 +3,8 @@
 ``Log`` is an operation (``trigger`` and ``at_end`` attributes, ``__call__(sim)``): pass it to
 ``sim.run(n, operations=[log])`` or append it to ``sim.operations``. ``Simulation.run`` calls it on
 every rank, after the steps its trigger selects and, as LAMMPS' thermo output, once after the last
-step of every run (``at_end``, default True); the call is collective (the energies are summed over ranks with ``sim.comm.sum``), and rank 0
-alone prints and writes.
+step of every run (``at_end``, default True); the call is collective (the energies are summed over
+ranks with ``sim.comm.sum``), and rank 0 alone prints and writes.
 
 Columns: ``step``, ``time`` [s], ``kinetic`` (translational + rotational kinetic energy [J]),
 ``bond`` (elastic energy of the intact bonds [J]), ``contact`` (elastic energy of the

@@ -9,9 +9,9 @@ biaxial and response drivers prepare 10,000 grains, then step 90,000 copies: mea
 the cumulative rate then said 187 steps/s where the loading ran 53); ``start(step)`` restarts
 the measure at a change of stage.
 
-It is an operation (``trigger = Periodic(1)``: after every step; ``__call__(sim)``) and also a plain reporter (``report``) for
-callers that sample themselves; ``say`` prints free text (phase changes). Nothing here is
-collective: it reads only what rank 0 holds.
+It is an operation (``trigger = Periodic(1)``: after every step; ``__call__(sim)``) and also a
+plain reporter (``report``) for callers that sample themselves; ``say`` prints free text (phase
+changes). Nothing here is collective: it reads only what rank 0 holds.
 """
 import sys
 import time
