@@ -21,7 +21,7 @@ from pardem.domains.ordered import ordered_lattice
 from pardem.io.paraview import ParaViewWriter
 from pardem.engine.simulation import Simulation
 from pardem.engine.state import Elements, Plates
-from pardem.engine.triggers import Periodic
+from pardem.triggers import Periodic
 
 from _util import FakeComm
 

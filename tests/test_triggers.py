@@ -1,4 +1,4 @@
-"""Triggers (``pardem.engine.triggers``) and how ``Simulation.run`` calls operations.
+"""Triggers (``pardem.triggers``) and how ``Simulation.run`` calls operations.
 
 Oracles: the triggers' definitions written out as plain Python predicates over a range of steps
 (brute force), and, for ``run``, the list of steps on which each operation must run counted by
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import pardem
-from pardem.engine.triggers import After, And, At, Before, Never, Not, Or, Periodic, Trigger, as_trigger
+from pardem.triggers import After, And, At, Before, Never, Not, Or, Periodic, Trigger, as_trigger
 from pardem.io.paraview import ParaViewWriter
 
 HORIZON = 240          # steps over which the brute-force twin is compared

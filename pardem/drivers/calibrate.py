@@ -78,7 +78,7 @@ from pardem.io.summary import write_json
 from pardem.parallel.communicator import Communicator
 from pardem.engine.errors import DecompositionError
 from pardem.engine.errors import InstabilityError
-from pardem.engine.triggers import as_trigger
+from pardem.triggers import as_trigger
 
 DECK_NAME = "compress_calibrated.toml"
 STRENGTH_KEYS = ("tensile_strength", "shear_strength", "densification_stress", "densification_p0")

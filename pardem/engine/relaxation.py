@@ -16,7 +16,7 @@ frictionless contacts only, so the adaptive step refuses contacts with friction.
 """
 import numpy as np
 
-from pardem.engine.triggers import Periodic
+from pardem.triggers import Periodic
 from pardem.parallel import exact_sum
 from pardem.physics import exact_accumulate, fire
 

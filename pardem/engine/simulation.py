@@ -6,7 +6,7 @@ the recipe of one step (ARCHITECTURE.md repeats it). Around the steps, ``run`` c
 * fixes (``sim.fixes``, objects with ``post_force(sim)``; ``pardem.engine.fixes``): inside every
   force evaluation, after all interaction forces: external loads, gravity, clamps, imposed motion;
 * operations (``Operation``: writers, progress, logs, checks, servo updaters): after the steps
-  on which their ``trigger`` (``pardem.engine.triggers``) is true, and once at the end of a ``run``
+  on which their ``trigger`` (``pardem.triggers``) is true, and once at the end of a ``run``
   for those whose ``at_end`` is true, in list order (``sim.operations`` first, then those given to
   ``run``); never otherwise.
 """
@@ -20,7 +20,7 @@ from pardem.config import DeckError
 from pardem.engine import stop
 from pardem.parallel import watchdog
 from pardem.engine.errors import InjectedFault, InstabilityError, Interrupted
-from pardem.engine.triggers import At, as_trigger
+from pardem.triggers import At, as_trigger
 from pardem.parallel import exact_sum
 from pardem.physics import exact_accumulate, walls
 from pardem.physics.finite import first_nonfinite
@@ -33,7 +33,7 @@ class Operation(Protocol):
     """Something run between steps: writers (``pardem.io``), samplers, protocol updaters.
 
     ``__call__(sim)`` runs on every rank (it may use collectives) after each step on which
-    ``trigger`` is true: a ``pardem.engine.triggers.Trigger`` of the step count, or an int n for
+    ``trigger`` is true: a ``pardem.triggers.Trigger`` of the step count, or an int n for
     ``Periodic(n)``. ``at_end`` (optional, default False): also run once at the end of every
     ``run`` (after its last step, or at once for ``run(0)``), for an operation that must see the
     state a run leaves (a sampler's last row, a servo's update); an operation due on the last step
@@ -76,7 +76,7 @@ def _trigger_of(op):
     """The trigger of operation ``op`` (ValueError, naming it, without one)."""
     if not hasattr(op, "trigger"):
         raise ValueError(f"operation {op!r} has no trigger: expected a ``trigger`` attribute (an int "
-                         f"period >= 1 or a pardem.engine.triggers.Trigger)"
+                         f"period >= 1 or a pardem.triggers.Trigger)"
                          + ("; ``every`` is no longer read: give ``trigger`` instead" if hasattr(op, "every") else ""))
     return as_trigger(op.trigger, f"trigger of {type(op).__name__}")
 

@@ -10,7 +10,7 @@ import time
 
 from pardem.config import Field, boolean, choice, number
 from pardem.engine.errors import OutputError
-from pardem.engine.triggers import Never, Periodic
+from pardem.triggers import Never, Periodic
 from pardem.io import checkpoint
 
 # the deck's [checkpoint] section of every driver that checkpoints: the writer's settings

@@ -28,7 +28,7 @@ import sys
 
 import numpy as np
 
-from pardem.engine.triggers import as_trigger
+from pardem.triggers import as_trigger
 from pardem.physics.beam import compute_bonds
 from pardem.physics.verlet import kinetic_energy
 
@@ -73,7 +73,7 @@ class Log:
     """Operation writing one thermo line per call (see the module docstring).
 
     directory : where ``log.txt`` goes (None: no file); trigger : the steps of the lines (an int
-    period [steps] or a ``pardem.engine.triggers.Trigger``); at_end : also a line after the last
+    period [steps] or a ``pardem.triggers.Trigger``); at_end : also a line after the last
     step of every run (a step already logged is not logged twice); columns : dict
     ``{name: function(sim) -> float}`` of user columns, called on **every** rank (so a function may
     use collectives such as ``sim.comm.sum``; rank 0's value is written); stream : where rank 0

@@ -56,7 +56,7 @@ import meshio
 import numpy as np
 
 from pardem.engine.state import BOND_INTACT
-from pardem.engine.triggers import as_trigger
+from pardem.triggers import as_trigger
 from pardem.physics.beam_axial import elastic_axial_force
 
 PVD_NAME = "pardem.pvd"
@@ -166,7 +166,7 @@ def _write_atomic(path, text):
 
 class ParaViewWriter:
     """Operation writing a ParaView snapshot of the simulation on the steps of ``trigger`` (an int
-    period [steps] or a ``pardem.engine.triggers.Trigger``), and after the last step of every run
+    period [steps] or a ``pardem.triggers.Trigger``), and after the last step of every run
     with ``at_end``.
 
     Collective: every rank of ``comm`` (a ``Communicator``) must call it at the same steps, as

@@ -16,7 +16,7 @@ changes). Nothing here is collective: it reads only what rank 0 holds.
 import sys
 import time
 
-from pardem.engine.triggers import Periodic
+from pardem.triggers import Periodic
 
 
 class Progress:

@@ -78,7 +78,7 @@ from pardem.engine.contacts import KEY_BASE
 from pardem.engine.membrane_load import MembraneLoad
 from pardem.engine.open_cell import open_axes
 from pardem.engine.replicate import replicate
-from pardem.engine.triggers import At, Or
+from pardem.triggers import At, Or
 from pardem.parallel.exact_sum import exact_sum
 from pardem.physics import hertz_mindlin as hm
 from pardem.physics import local_strain, shear_band

@@ -28,7 +28,7 @@ from pardem.physics.timestep import critical_time_step, eigen_bound, max_tau
 from pardem.engine.reducer import STRAIN_SUMS, Reducer, gradient_from_sums, strain_sums, young_and_poisson
 from pardem.engine.simulation import Simulation
 from pardem.engine.state import FLAG_NEAR_PLATE, Bonds, Elements, Plates
-from pardem.engine.triggers import as_trigger
+from pardem.triggers import as_trigger
 
 NEAR_PLATE_GAP = 0.5   # elements closer than this many radii to a plate at the start: not in the strain fit
 

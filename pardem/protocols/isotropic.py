@@ -113,7 +113,7 @@ from pardem.physics import hertz_mindlin
 from pardem.physics.contact_frame import pair_geometry
 from pardem.engine.reducer import granular_measures
 from pardem.engine.relaxation import Fire
-from pardem.engine.triggers import as_trigger
+from pardem.triggers import as_trigger
 from pardem.parallel.exact_sum import exact_sum
 from pardem.protocols import moduli_check
 from pardem.protocols.granular_output import (CHECKPOINT_SECTION, DOMAIN_SECTION, StepLimit, domain_checks,

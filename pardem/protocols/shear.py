@@ -48,7 +48,7 @@ from pardem.config import DeckError, check_deck, raw_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.engine.reducer import gradient_from_sums, strain_sums
 from pardem.engine.state import FLAG_NEAR_PLATE
-from pardem.engine.triggers import Periodic, as_trigger
+from pardem.triggers import Periodic, as_trigger
 
 
 def shear_history(t, rate, ramp):

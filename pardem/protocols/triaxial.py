@@ -35,7 +35,7 @@ from pardem.engine import granular
 from pardem.config import DeckError, Field, Schema, auto_or, boolean, choice, number, positive
 from pardem.protocols import deck_checks as dc
 from pardem.engine.periodic_cell import PeriodicCell
-from pardem.engine.triggers import At, Or, as_trigger
+from pardem.triggers import At, Or, as_trigger
 from pardem.parallel.exact_sum import exact_sum
 from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit, run_section
 

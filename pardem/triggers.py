@@ -270,10 +270,10 @@ def as_trigger(value, name="trigger"):
     if isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)):
         if value < 1:
             raise ValueError(f"{name} = {value!r}: expected a period, an integer >= 1 (steps), "
-                             f"or a Trigger (pardem.engine.triggers)")
+                             f"or a Trigger (pardem.triggers)")
         return Periodic(int(value))
     raise ValueError(f"{name} = {value!r}: expected a period, an integer >= 1 (steps), or a Trigger "
-                     f"(Periodic, At, Never, Or, ...: pardem.engine.triggers)")
+                     f"(Periodic, At, Never, Or, ...: pardem.triggers)")
 
 
 __all__ = ["Trigger", "Periodic", "At", "Never", "After", "Before", "Or", "And", "Not", "as_trigger"]
