@@ -93,10 +93,11 @@ def timed(name, fn):
 
 
 class TimedOp:
-    """An operation with its ``every``, timed under ``name``."""
+    """An operation with its ``trigger`` and ``at_end``, timed under ``name``."""
 
     def __init__(self, name, op):
-        self.name, self.op, self.every = name, op, op.every
+        self.name, self.op = name, op
+        self.trigger, self.at_end = op.trigger, getattr(op, "at_end", False)
 
     def __call__(self, sim):
         t0 = CLOCK[0]()
@@ -180,7 +181,8 @@ class Case:
         writer = CheckpointWriter(lambda: checkpoint_payload(case), os.path.join(folder, "checkpoints"),
                                   ck["every_steps"], ck["every_seconds"], ck["keep"], ck["driver"],
                                   start_step=sim.step_count)
-        self.sample_every, self.checkpoint_every = sampler.every, writer.every
+        # the checkpoint writer's period of looks (None: it never looks)
+        self.sample_every, self.checkpoint_every = every, getattr(writer.trigger, "period", None)
         return [TimedOp("sampler", sampler), TimedOp("checkpoint", writer)]
 
     def run(self, steps):

@@ -64,7 +64,7 @@ def main(argv=None):
     steps = int(np.ceil(duration / sim.dt / n_samples))
     strain, stress = [], []
     area = box[0] * box[1]
-    log = pardem.Log(every=steps)              # thermo line (rank 0 prints), every 10th sample
+    log = pardem.Log(trigger=steps)            # thermo line (rank 0 prints), every 10th sample
     for i in range(n_samples):
         sim.run(steps, operations=[log] if (i + 1) % 10 == 0 else [])
         f = walls.normal_force                   # compressive force on each wall [N], end of this run

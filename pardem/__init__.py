@@ -4,7 +4,9 @@ The Python API, at one level (HOOMD-blue and Yade style): describe the system (`
 ``Particles``, a ``ContactModel``, a ``BondModel``, ``WallModel``, ``Cell``, ``Integration``,
 ``Decomposition``), ``build`` the ``Simulation``, add loads and constraints (``add_fixes(sim, ...)``:
 ``Gravity``, ``ExternalForce``, ``Clamp``, ``PrescribedVelocity``), run it with operations (``Log``,
-``ParaViewWriter``, ``CheckpointWriter``), and ``save`` / ``load`` checkpoints. The same script
+``ParaViewWriter``, ``CheckpointWriter``, ``ContactWriter``) that run when their trigger fires
+(``Periodic``, ``At``, ``After``, ``Before``, ``Never``; an int n is ``Periodic(n)``), and
+``save`` / ``load`` checkpoints. The same script
 runs on one process (``python script.py``) and on several (``mpiexec -n 2 python script.py``):
 every rank passes the same global arrays; particle ``k`` of the arrays has global id ``k``.
 
@@ -22,7 +24,7 @@ A cantilever of 11 spheres, clamped at one end and loaded at the other::
                            integration=pardem.Integration(viscous_damping=270.0))
     sim = pardem.build(comm, system)
     pardem.add_fixes(sim, pardem.Clamp([0]), pardem.ExternalForce([n - 1], force=(0, 0, -1e-3)))
-    sim.run(30000, operations=[pardem.Log(every=10000)])
+    sim.run(30000, operations=[pardem.Log(trigger=10000)])
 
 Checkpoints: ``pardem.save(sim, "state.h5")`` (collective) and ``sim = pardem.load(comm,
 "state.h5")`` on any number of ranks (bit for bit on the rank count that wrote it); the file holds
@@ -74,6 +76,12 @@ _EXPORTS = {
     "ContactWriter": ("pardem.io.contact_writer", "ContactWriter"),
     "energies": ("pardem.io.log", "energies"),
     "critical_time_step": ("pardem.engine.critical_step", "critical_time_step_of"),
+    # triggers: when an operation runs
+    "Periodic": ("pardem.triggers", "Periodic"),
+    "At": ("pardem.triggers", "At"),
+    "Never": ("pardem.triggers", "Never"),
+    "After": ("pardem.triggers", "After"),
+    "Before": ("pardem.triggers", "Before"),
     # checkpoints
     "save": ("pardem.restart", "save"),
     "load": ("pardem.restart", "load"),

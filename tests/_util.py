@@ -119,7 +119,7 @@ def free_oscillation(e, b, omega_d, measure, periods=4.5, per_period=400):
     out = [measure(e)]
 
     class Record:
-        every = 1
+        trigger = 1
 
         def __call__(self, sim):
             out.append(measure(sim.elements))

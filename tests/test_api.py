@@ -191,7 +191,7 @@ def test_frictional_walls_get_a_history_per_element(comm):
 def test_log_writes_energies_and_user_columns(comm, tmp_path):
     v = np.array([0.3, 0.0, -0.4])
     sim = sphere(comm, z=1.0, v=v, dt=1e-4)
-    log = pardem.Log(tmp_path, every=10, columns={"z": lambda s: s.elements.x[0, 2]}, stream=None)
+    log = pardem.Log(tmp_path, trigger=10, columns={"z": lambda s: s.elements.x[0, 2]}, stream=None)
     sim.run(30, operations=[log])
     data = np.loadtxt(tmp_path / "log.txt")
     assert data.shape == (3, 8)
@@ -203,22 +203,22 @@ def test_log_writes_energies_and_user_columns(comm, tmp_path):
     assert np.allclose(data[:, 7], 1.0 + v[2] * data[:, 1], rtol=1e-9)
     log.close()
     # append (the default): a restart continues the same file
-    again = pardem.Log(tmp_path, every=10, stream=None)
+    again = pardem.Log(tmp_path, trigger=10, stream=None)
     sim.run(10, operations=[again])
     again.close()
     text = (tmp_path / "log.txt").read_text()
     assert "# continued at step 40" in text and text.count("\n") == 1 + 3 + 2 + 1
     with pytest.raises(FileExistsError, match="refusing to overwrite"):
         sim.run(10, operations=[pardem.Log(tmp_path, stream=None, mode="new")])
-    fresh = pardem.Log(tmp_path, every=5, stream=None, mode="overwrite")
+    fresh = pardem.Log(tmp_path, trigger=5, stream=None, mode="overwrite")
     sim.run(5, operations=[fresh])
     fresh.close()
     assert np.loadtxt(tmp_path / "log.txt").shape == (7,)
 
 
 def test_log_inputs_are_checked():
-    with pytest.raises(ValueError, match="every must be an integer >= 1"):
-        pardem.Log(every=0)
+    with pytest.raises(ValueError, match="trigger = 0: expected a period, an integer >= 1"):
+        pardem.Log(trigger=0)
     with pytest.raises(ValueError, match="mode must be one of"):
         pardem.Log(mode="w")
     with pytest.raises(ValueError, match="column names"):
@@ -235,7 +235,7 @@ LOG_SCRIPT = textwrap.dedent("""
     sim = pardem.build(comm, pardem.System(pardem.Particles(x, R, 1000.0), bonds=pardem.BondModel(mat, pairs),
                                            integration=pardem.Integration(dt=2e-6)))
     pardem.add_fixes(sim, pardem.ExternalForce([0, 11], [(0, 0, 1e-2), (0, 0, -1e-2)]))
-    log = pardem.Log(sys.argv[1], every=500, stream=None)
+    log = pardem.Log(sys.argv[1], trigger=500, stream=None)
     sim.run(2000, operations=[log])
 """)
 
@@ -262,7 +262,7 @@ def test_log_counts_each_bond_once_on_two_ranks(tmp_path):
 
 def test_log_prints_on_stdout_by_default(comm, capsys):
     sim = sphere(comm, z=1.0, v=(0.0, 0.0, 1.0), dt=1e-4)
-    sim.run(4, operations=[pardem.Log(every=2, columns={"vz": lambda s: s.elements.v[0, 2]})])
+    sim.run(4, operations=[pardem.Log(trigger=2, columns={"vz": lambda s: s.elements.v[0, 2]})])
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].split() == ["step", "time", "kinetic", "bond", "contact", "wall", "total", "vz"]
     assert [ln.split()[0] for ln in lines[1:]] == ["2", "4"]

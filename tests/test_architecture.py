@@ -27,6 +27,7 @@ FORBIDDEN = {
     "drivers": ["mpi4py", "h5py"],
     "config.py": ["mpi4py", "h5py", "meshio", "pardem.engine", "pardem.protocols", "pardem.drivers",
                   "pardem.parallel", "pardem.io"],
+    "triggers.py": ["mpi4py", "h5py", "meshio", "pardem"],
 }
 # where mpi4py may be imported at all
 MPI_HOME = "parallel"

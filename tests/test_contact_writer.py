@@ -41,7 +41,7 @@ def test_written_network_gives_the_grains_contact_forces(tmp_path):
     seen = {}
 
     class Keep:   # the grains' loads and the loop's count at the writer's steps
-        every = EVERY
+        trigger = EVERY
 
         def __call__(self, s):
             e = s.elements
@@ -49,7 +49,7 @@ def test_written_network_gives_the_grains_contact_forces(tmp_path):
             seen[s.step_count] = (e.f[order].copy(), e.t[order].copy(), e.x[order].copy(),
                                   e.radius[order].copy(), s.contacts.n_touching)
 
-    writer = ContactWriter(path, every=EVERY)
+    writer = ContactWriter(path, trigger=EVERY)
     sim.run(STEPS, operations=[writer, Keep()])
     assert writer.steps == [EVERY, 2 * EVERY] == sorted(seen)
     sliding_seen = sticking_seen = 0
@@ -111,17 +111,17 @@ def test_never_overwrites_unasked(tmp_path):
     path.write_bytes(b"user data")
     sim = pardem.build(pardem.Communicator(), system())
     with pytest.raises(FileExistsError, match="refusing"):
-        sim.run(1, operations=[ContactWriter(path, every=1)])
+        sim.run(1, operations=[ContactWriter(path, trigger=1)])
     assert path.read_bytes() == b"user data"
-    sim.run(1, operations=[ContactWriter(path, every=1, mode="overwrite")])
-    sim.run(1, operations=[ContactWriter(path, every=1, mode="append")])
+    sim.run(1, operations=[ContactWriter(path, trigger=1, mode="overwrite")])
+    sim.run(1, operations=[ContactWriter(path, trigger=1, mode="append")])
     with h5py.File(path, "r") as fh:
         assert sorted(fh) == [group_name(2), group_name(3)]
     with pytest.raises(FileExistsError, match="already holds"):   # the same step twice
-        ContactWriter(path, every=1, mode="append")(sim)
+        ContactWriter(path, trigger=1, mode="append")(sim)
     for bad in (0, -1, 2.5, True, "10"):
-        with pytest.raises(ValueError, match="every"):
-            ContactWriter(path, every=bad)
+        with pytest.raises(ValueError, match="trigger"):
+            ContactWriter(path, trigger=bad)
     with pytest.raises(ValueError, match="mode"):
         ContactWriter(path, mode="replace")
 

@@ -204,7 +204,7 @@ def free_lattice_run():
     energies = [_energy(sim)]
 
     class Sample:
-        every = 20
+        trigger = 20
 
         def __call__(self, s):
             energies.append(_energy(s))
@@ -243,7 +243,7 @@ def test_raw_energy_within_tenth_of_percent():
     totals = [_energy(sim)[0]]
 
     class Sample:
-        every = 50
+        trigger = 50
 
         def __call__(self, s):
             totals.append(_energy(s)[0])

@@ -21,6 +21,7 @@ from pardem.domains.ordered import ordered_lattice
 from pardem.io.paraview import ParaViewWriter
 from pardem.engine.simulation import Simulation
 from pardem.engine.state import Elements, Plates
+from pardem.triggers import Periodic
 
 from _util import FakeComm
 
@@ -110,8 +111,8 @@ def test_serial_snapshots_match_the_state(tmp_path):
     e = sim.elements
     n = e.n_total
     out = tmp_path / "vtk"
-    writer = ParaViewWriter(out, sim.comm, every=5)
-    assert writer.every == 5
+    writer = ParaViewWriter(out, sim.comm, trigger=5)
+    assert writer.trigger == Periodic(5) and not writer.at_end
 
     snaps = {}
     for step in (5, 10):
@@ -216,8 +217,8 @@ def test_empty_pieces_are_left_out_consistently(tmp_path):
     assert read_pvd(tmp_path / "empty" / "pardem.pvd") == [(6 * sim.dt, "snapshot-00000006.pvtu")]
 
 
-def test_every_must_be_positive(tmp_path):
-    with pytest.raises(ValueError, match="every"):
+def test_trigger_must_be_positive(tmp_path):
+    with pytest.raises(ValueError, match="trigger = 0: expected a period"):
         ParaViewWriter(tmp_path, FakeComm(), 0)
 
 

@@ -324,7 +324,7 @@ def test_2d_cement_is_the_3d_cement_of_the_planar_configuration_bit_for_bit():
 class _Record:
     """Operation (every step): the tension carried by the pair along ``u`` (the clamp's reaction
     on grain 0, ``-reaction . u``), the cement state and the out-of-plane loads."""
-    every = 1
+    trigger = 1
 
     def __init__(self, clamp, u):
         self.clamp, self.u, self.rows = clamp, u, []

@@ -242,8 +242,9 @@ def _case_outputs(out, case_comm, vtk_every):
             files.callback(csv.close)
             h5 = SeriesH5(os.path.join(folder, f"{name}.h5"))
             files.callback(h5.close)
-            ops = [ParaViewWriter(os.path.join(out, "paraview", name), case_comm, vtk_every, dt=sim.dt)] \
-                if vtk_every else []
+            # one sim.run per case: its last step too
+            ops = [ParaViewWriter(os.path.join(out, "paraview", name), case_comm, vtk_every, dt=sim.dt,
+                                  at_end=True)] if vtk_every else []
             yield [csv.append, h5.append], ops
     return outputs
 

@@ -79,6 +79,7 @@ from pardem.io.summary import write_json, write_text
 from pardem.parallel.communicator import Communicator
 from pardem.errors import DecompositionError
 from pardem.errors import InstabilityError
+from pardem.triggers import as_trigger
 
 DECK_NAME = "compress_calibrated.toml"
 STRENGTH_KEYS = ("tensile_strength", "shear_strength", "densification_stress", "densification_p0")
@@ -242,14 +243,16 @@ def shear_run(comm, raw, plane, strain, transits, out, name, output, estimate, s
 
 
 class _LazyParaView:
-    """A ParaView writer made at its first call (collective), when the run's time step is known."""
+    """A ParaView writer made at its first call (collective), when the run's time step is known:
+    every ``trigger`` steps and after the run's last step (each run is one ``sim.run``)."""
+    at_end = True
 
-    def __init__(self, directory, comm, every):
-        self.directory, self.comm, self.every, self._w = directory, comm, int(every), None
+    def __init__(self, directory, comm, trigger):
+        self.directory, self.comm, self.trigger, self._w = directory, comm, as_trigger(trigger), None
 
     def __call__(self, sim):
         if self._w is None:
-            self._w = ParaViewWriter(self.directory, self.comm, self.every, dt=sim.dt)
+            self._w = ParaViewWriter(self.directory, self.comm, self.trigger, dt=sim.dt, at_end=True)
         self._w(sim)
 
 

@@ -27,7 +27,9 @@ from pardem.protocols.compression_deck import COMPRESS_SCHEMA, upgrade
 class Compress(ProtocolDriver):
     name = "compress"
     schema = COMPRESS_SCHEMA
-    paraview_at_end = True
+
+    def paraview_trigger(self, run, every):
+        return every, True    # one sim.run: its last step too
 
     def base_deck(self, run):
         return upgrade(run.meta["deck"])

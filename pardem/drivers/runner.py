@@ -38,7 +38,7 @@ from pardem.io.summary import write_json
 from pardem import restart
 from pardem.parallel.communicator import Communicator
 from pardem.protocols import granular_output as gout
-from pardem.protocols.granular_output import Every, StepLimit
+from pardem.protocols.granular_output import StepLimit
 
 
 @dataclass
@@ -76,11 +76,16 @@ class ProtocolDriver:
     schema = None
     summary_name = "summary.json"
     error_types = ()
-    paraview_at_end = False    # also a snapshot at the end of every ``sim.run`` (one-run protocols)
 
     def total_steps(self, run):
         """The run's total step count from its start, if known (the progress ETA), else None."""
         return None
+
+    def paraview_trigger(self, run, every):
+        """When the ParaView writer of ``output.vtk_every = every`` writes: ``(trigger, at_end)``
+        (``Operation``). Default: every ``every`` steps only (the protocols run in many short
+        ``sim.run``); a protocol of one ``sim.run`` may add its last step (``at_end``)."""
+        return every, False
 
     def read_deck(self, run):
         """The checked deck (``run.meta`` holds the checkpoint's attributes on restart)."""
@@ -161,9 +166,10 @@ def run_protocol(comm, args, protocol):
         run.operations = [run.writer]
         vtk_every = deck["output"]["vtk_every"]
         if vtk_every:
-            pv = ParaViewWriter(os.path.join(run.out, "paraview"), comm, vtk_every,
+            trigger, at_end = protocol.paraview_trigger(run, vtk_every)
+            pv = ParaViewWriter(os.path.join(run.out, "paraview"), comm, trigger, at_end=at_end,
                                 resume_step=sim.step_count if args.restart else None, dt=sim.dt)
-            run.operations.append(pv if protocol.paraview_at_end else Every(pv, vtk_every))
+            run.operations.append(pv)
             if sim.step_count == 0:
                 pv(sim)    # the initial state
         if fault:

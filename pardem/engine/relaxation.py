@@ -16,15 +16,16 @@ frictionless contacts only, so the adaptive step refuses contacts with friction.
 """
 import numpy as np
 
+from pardem.triggers import Periodic
 from pardem.parallel import exact_sum
 from pardem.physics import exact_accumulate, fire
 
 
 class Fire:
-    """The FIRE operation; call it after every step (``every = 1``). Collective (one allreduce of
+    """The FIRE operation; call it after every step (``trigger = Periodic(1)``). Collective (one allreduce of
     three numbers per step, and one of the stiffness bound every ``bound_every`` steps when the
     step adapts). ``dt_max``, ``dt_min`` [s]; the caller restores its own step afterwards."""
-    every = 1
+    trigger = Periodic(1)
 
     def __init__(self, alpha_start=0.1, f_alpha=0.99, n_min=5, dt_max=None, dt_min=None, f_inc=1.1,
                  f_dec=0.5, safety=0.5, bound_every=10):

@@ -6,8 +6,9 @@ the recipe of one step (ARCHITECTURE.md repeats it). Around the steps, ``run`` c
 * fixes (``sim.fixes``, objects with ``post_force(sim)``; ``pardem.engine.fixes``): inside every
   force evaluation, after all interaction forces: external loads, gravity, clamps, imposed motion;
 * operations (``Operation``: writers, progress, logs, checks, servo updaters): after the steps
-  whose count is a multiple of their ``every`` (the trigger), in list order (``sim.operations``
-  first, then those given to ``run``), and once more at the end of every ``run``.
+  on which their ``trigger`` (``pardem.triggers``) is true, and once at the end of a ``run``
+  for those whose ``at_end`` is true, in list order (``sim.operations`` first, then those given to
+  ``run``); never otherwise.
 """
 import os
 import time as _time
@@ -20,6 +21,7 @@ from pardem.engine import stop
 from pardem.parallel import watchdog
 from pardem.errors import InjectedFault, InstabilityError, Interrupted
 from pardem.engine.particles import Particles, reduce_globals
+from pardem.triggers import At, as_trigger
 from pardem.parallel import exact_sum
 from pardem.physics import exact_accumulate, walls
 from pardem.physics.finite import first_nonfinite
@@ -29,11 +31,17 @@ from pardem.physics.verlet import kick, kick_drift, kinetic_energy
 
 
 class Operation(Protocol):
-    """Something run between steps: ``every`` [steps] is its trigger; ``__call__(sim)`` runs on
-    every rank (it may use collectives), after the step whose count is a multiple of ``every`` and
-    once at the end of each ``run``. Writers (``pardem.io``) and protocol updaters are operations.
+    """Something run between steps: writers (``pardem.io``), samplers, protocol updaters.
+
+    ``__call__(sim)`` runs on every rank (it may use collectives) after each step on which
+    ``trigger`` is true: a ``pardem.triggers.Trigger`` of the step count, or an int n for
+    ``Periodic(n)``. ``at_end`` (optional, default False): also run once at the end of every
+    ``run`` (after its last step, or at once for ``run(0)``), for an operation that must see the
+    state a run leaves (a sampler's last row, a servo's update); an operation due on the last step
+    runs once. ``run`` calls it on no other step.
     """
-    every: int
+    trigger: object
+    at_end: bool = False
 
     def __call__(self, sim: "Simulation") -> None: ...
 
@@ -43,10 +51,10 @@ class FaultInjection:
 
     Lets a test check that a failure on one rank ends every rank promptly.
     """
-    every = 1
 
     def __init__(self, rank, step):
         self.rank, self.step = int(rank), int(step)
+        self.trigger = At(self.step)     # looked at on that step only
 
     @classmethod
     def from_environment(cls):
@@ -63,6 +71,15 @@ class FaultInjection:
     def __call__(self, sim):
         if sim.comm.rank == self.rank and sim.step_count == self.step:
             raise InjectedFault(f"fault injected on rank {self.rank} at step {self.step} (PARDEM_FAULT)")
+
+
+def _trigger_of(op):
+    """The trigger of operation ``op`` (ValueError, naming it, without one)."""
+    if not hasattr(op, "trigger"):
+        raise ValueError(f"operation {op!r} has no trigger: expected a ``trigger`` attribute (an int "
+                         f"period >= 1 or a pardem.triggers.Trigger)"
+                         + ("; ``every`` is no longer read: give ``trigger`` instead" if hasattr(op, "every") else ""))
+    return as_trigger(op.trigger, f"trigger of {type(op).__name__}")
 
 
 class Simulation:
@@ -333,25 +350,50 @@ class Simulation:
         return float(self.comm.sum(kinetic_energy(e.v, e.w, e.mass, e.inertia, e.n_owned)))
 
     def run(self, n_steps, operations=()):
-        """Advance ``n_steps`` steps, running ``self.operations`` then ``operations`` on their
-        periods and once more at the end."""
+        """Advance ``n_steps`` steps (an integer >= 0), running ``self.operations`` then
+        ``operations`` (``Operation``) after the steps their triggers select, and those with
+        ``at_end`` once at the end.
+
+        The contact energies are computed (LAMMPS' eflag) on the steps after which an operation
+        runs and on the last step (the state the caller gets back: a checkpoint stores them).
+        Between those steps the loop costs one integer comparison a step: each trigger's
+        ``next_after`` says the next step to look at.
+        """
+        if (isinstance(n_steps, (bool, np.bool_)) or not isinstance(n_steps, (int, np.integer))
+                or n_steps < 0):
+            raise ValueError(f"n_steps = {n_steps!r}: expected an integer >= 0 (steps to run)")
         operations = list(self.operations) + list(operations)
+        triggers = [_trigger_of(op) for op in operations]
+        at_end = [bool(getattr(op, "at_end", False)) for op in operations]
         if self.step_count == 0:
             if self.contacts is not None and self.domain is None and self.contacts.vl.builds == 0:
                 self.rebuild_contacts()
             self.compute_forces()   # forces of the initial state for the first half kick
         end = self.step_count + int(n_steps)
+        look = [t.next_after(self.step_count) for t in triggers]   # None: never again
+        due = min((s for s in look if s is not None), default=None)
+        ran = ()
         while self.step_count < end:
             after = self.step_count + 1
-            # the energies are computed (LAMMPS' eflag) only when an operation may read them
-            self.step(with_energy=after == end or any(after % op.every == 0 for op in operations))
+            ran = ()
+            if after == due:
+                # the operations whose trigger is true on this step (triggers are pure functions
+                # of the step, so they are asked before the step: it must know the energy flag)
+                ran = [i for i, s in enumerate(look) if s == after and triggers[i](after)]
+                for i, s in enumerate(look):
+                    if s == after:
+                        look[i] = triggers[i].next_after(after)
+                due = min((s for s in look if s is not None), default=None)
+            self.step(with_energy=bool(ran) or after == end)
             watchdog.beat()          # this rank's progress, for the watchdog and the signal handler
             if self.step_count % self.check_every == 0 or self.step_count == end:
                 self.check_stability(stop_requests=True)
-            for op in operations:
-                if self.step_count % op.every == 0 and self.step_count != end:
-                    op(self)
+            if self.step_count != end:
+                for i in ran:
+                    operations[i](self)
         self._reduce_globals(again=self.step_count == 0)   # walls.force, fix.global_reaction: end of run
-        for op in operations:
-            op(self)
+        # the last step's operations with the at_end ones, in list order, each once
+        for i, op in enumerate(operations):
+            if at_end[i] or i in ran:
+                op(self)
         watchdog.pause()    # out of the time loop: the caller may do long serial work now

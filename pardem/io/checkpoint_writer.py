@@ -10,6 +10,7 @@ import time
 
 from pardem.config import Field, boolean, choice, number
 from pardem.errors import OutputError
+from pardem.triggers import Never, Periodic
 from pardem.io import checkpoint
 
 # the deck's [checkpoint] section of every driver that checkpoints: the writer's settings
@@ -27,9 +28,6 @@ DECK_SECTION = {
 }
 
 
-NEVER = 1 << 62   # the period of an operation that only runs at the end of each ``run``
-
-
 class CheckpointWriter:
     """Operation writing checkpoints every ``every_steps`` steps and/or ``every_seconds`` seconds.
 
@@ -44,11 +42,11 @@ class CheckpointWriter:
         self.payload, self.directory = payload, directory
         self.every_steps, self.every_seconds = int(every_steps), float(every_seconds)
         # the trigger: only the steps where a checkpoint may be due (an operation due on a step makes
-        # that step compute its energies, so ``every = 1`` would cost every step the energy sums)
+        # that step compute its energies, so ``Periodic(1)`` would cost every step the energy sums)
         if self.every_seconds > 0:
-            self.every = math.gcd(self.every_steps, self.SECONDS_CHECK)
+            self.trigger = Periodic(math.gcd(self.every_steps, self.SECONDS_CHECK))
         else:
-            self.every = self.every_steps or NEVER
+            self.trigger = Periodic(self.every_steps) if self.every_steps else Never()
         self.keep, self.mode = int(keep), mode
         self.last_time = time.monotonic()
         self.last_step = int(start_step)

@@ -1,6 +1,6 @@
 """Contact network writer: at its steps, every touching pair once, into one HDF5 file.
 
-``ContactWriter`` is an operation (``every`` attribute, ``__call__(sim)``): pass it to
+``ContactWriter`` is an operation (``trigger``, ``at_end``, ``__call__(sim)``): pass it to
 ``sim.run(n, operations=[writer])``. The call is collective: every rank selects the pairs it
 counts (``Contacts.counted_once``: those whose lower-gid end it owns, so a pair held by two ranks
 is counted by one), the rows are gathered with ``Communicator.allgatherv`` and rank 0 writes.
@@ -34,17 +34,11 @@ import numpy as np
 
 from pardem.physics.contact_frame import pair_geometry
 from pardem.physics.contact_laws import LAWS
+from pardem.triggers import as_trigger
 
 MODES = ("new", "append", "overwrite")
 SLIDING_TOLERANCE = 1e-9     # relative: |F_t| >= (1 - tol) mu fn counts as sliding
 _FLOATS = 11                 # gathered columns: branch (3), fn (3), ft (3), overlap, sliding
-
-
-def _period(every):
-    """The writer's period [steps] (an integer >= 1)."""
-    if isinstance(every, bool) or not (isinstance(every, (int, np.integer)) and every >= 1):
-        raise ValueError(f"every must be an integer >= 1 (steps), got {every!r}")
-    return int(every)
 
 
 def group_name(step):
@@ -77,12 +71,13 @@ def local_contacts(sim):
 
 
 class ContactWriter:
-    """Writes the contact network of ``sim`` to ``path`` (HDF5, module docstring) every ``every``
-    steps and at the end of a run. mode : "new" (refuse an existing file), "append" or
-    "overwrite". ``steps`` lists the steps this object wrote (every rank)."""
+    """Writes the contact network of ``sim`` to ``path`` (HDF5, module docstring) on the steps of
+    ``trigger`` (a ``pardem.triggers`` trigger, or a period [steps]) and, with ``at_end``, after the
+    last step of each run. mode : "new" (refuse an existing file), "append" or "overwrite".
+    ``steps`` lists the steps this object wrote (every rank)."""
 
-    def __init__(self, path, every=100, mode="new"):
-        self.every = _period(every)
+    def __init__(self, path, trigger=100, mode="new", at_end=False):
+        self.trigger, self.at_end = as_trigger(trigger), bool(at_end)
         if mode not in MODES:
             raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
         if not isinstance(path, (str, os.PathLike)) or not os.fspath(path):

@@ -1,10 +1,10 @@
 """Thermo log: one line per call with the step, time, energies and user columns (LAMMPS' thermo).
 
-``Log`` is an operation (``every`` attribute, ``__call__(sim)``): pass it to ``sim.run(n,
-operations=[log])`` or append it to ``sim.operations``. ``Simulation.run`` calls operations on
-every rank, after the steps whose count is a multiple of ``every`` and once at the end of the run;
-the call is collective (the energies are summed over ranks with ``sim.comm.sum``), and rank 0
-alone prints and writes.
+``Log`` is an operation (``trigger`` and ``at_end`` attributes, ``__call__(sim)``): pass it to
+``sim.run(n, operations=[log])`` or append it to ``sim.operations``. ``Simulation.run`` calls it on
+every rank, after the steps its trigger selects and, as LAMMPS' thermo output, once after the last
+step of every run (``at_end``, default True); the call is collective (the energies are summed over
+ranks with ``sim.comm.sum``), and rank 0 alone prints and writes.
 
 Columns: ``step``, ``time`` [s], ``kinetic`` (translational + rotational kinetic energy [J]),
 ``bond`` (elastic energy of the intact bonds [J]), ``contact`` (elastic energy of the
@@ -28,6 +28,7 @@ import sys
 
 import numpy as np
 
+from pardem.triggers import as_trigger
 from pardem.physics.beam import compute_bonds
 from pardem.physics.verlet import kinetic_energy
 
@@ -71,7 +72,9 @@ def _bond_energy_once(sim):
 class Log:
     """Operation writing one thermo line per call (see the module docstring).
 
-    directory : where ``log.txt`` goes (None: no file); every : period in steps; columns : dict
+    directory : where ``log.txt`` goes (None: no file); trigger : the steps of the lines (an int
+    period [steps] or a ``pardem.triggers.Trigger``); at_end : also a line after the last
+    step of every run (a step already logged is not logged twice); columns : dict
     ``{name: function(sim) -> float}`` of user columns, called on **every** rank (so a function may
     use collectives such as ``sim.comm.sum``; rank 0's value is written); stream : where rank 0
     prints (default ``"stdout"``: the ``sys.stdout`` of the moment; None: no printing); mode : "append" (default), "new" or
@@ -79,10 +82,9 @@ class Log:
     ``rows`` keeps every line written by this object (rank 0; list of tuples), ``names`` the columns.
     """
 
-    def __init__(self, directory=None, every=100, columns=None, stream="stdout", mode="append",
-                 precision=10):
-        if not (isinstance(every, (int, np.integer)) and every >= 1):
-            raise ValueError(f"every must be an integer >= 1 (steps), got {every!r}")
+    def __init__(self, directory=None, trigger=100, columns=None, stream="stdout", mode="append",
+                 precision=10, at_end=True):
+        trigger = as_trigger(trigger)
         if mode not in MODES:
             raise ValueError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
         columns = dict(columns or {})
@@ -92,7 +94,7 @@ class Log:
                                  f"{', '.join(COLUMNS)}; got {name!r}")
             if not callable(fn):
                 raise ValueError(f"column {name!r} must be a function sim -> float, got {type(fn).__name__}")
-        self.every = int(every)
+        self.trigger, self.at_end = trigger, bool(at_end)
         self.directory = directory
         self.columns = columns
         self.names = COLUMNS + tuple(columns)

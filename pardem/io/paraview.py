@@ -56,6 +56,7 @@ import meshio
 import numpy as np
 
 from pardem.physics.bond_state import BOND_INTACT
+from pardem.triggers import as_trigger
 from pardem.physics.beam_axial import elastic_axial_force
 
 PVD_NAME = "pardem.pvd"
@@ -164,7 +165,9 @@ def _write_atomic(path, text):
 
 
 class ParaViewWriter:
-    """Operation writing a ParaView snapshot of the simulation every ``every`` steps.
+    """Operation writing a ParaView snapshot of the simulation on the steps of ``trigger`` (an int
+    period [steps] or a ``pardem.triggers.Trigger``), and after the last step of every run
+    with ``at_end``.
 
     Collective: every rank of ``comm`` (a ``Communicator``) must call it at the same steps, as
     ``Simulation.run`` does. Each rank writes its piece; then, once all pieces exist, rank 0 writes
@@ -172,12 +175,10 @@ class ParaViewWriter:
     ``RuntimeError`` on every rank. Units and file layout: see the module docstring.
     """
 
-    def __init__(self, directory, comm, every, resume_step=None, dt=None):
-        if int(every) < 1:
-            raise ValueError(f"every = {every!r}: expected an integer number of steps >= 1")
+    def __init__(self, directory, comm, trigger, resume_step=None, dt=None, at_end=False):
+        self.trigger, self.at_end = as_trigger(trigger), bool(at_end)
         self.directory = os.fspath(directory)
         self.comm = comm
-        self.every = int(every)
         self.snapshots = {}   # step -> (time [s], .pvtu name), on rank 0
         if comm.is_root:
             os.makedirs(self.directory, exist_ok=True)

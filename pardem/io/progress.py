@@ -9,12 +9,14 @@ biaxial and response drivers prepare 10,000 grains, then step 90,000 copies: mea
 the cumulative rate then said 187 steps/s where the loading ran 53); ``start(step)`` restarts
 the measure at a change of stage.
 
-It is an operation (``every = 1``, ``__call__(sim)``) and also a plain reporter (``report``) for
-callers that sample themselves; ``say`` prints free text (phase changes). Nothing here is
-collective: it reads only what rank 0 holds.
+It is an operation (``trigger = Periodic(1)``: after every step; ``__call__(sim)``) and also a
+plain reporter (``report``) for callers that sample themselves; ``say`` prints free text (phase
+changes). Nothing here is collective: it reads only what rank 0 holds.
 """
 import sys
 import time
+
+from pardem.triggers import Periodic
 
 
 class Progress:
@@ -25,7 +27,7 @@ class Progress:
     element-steps per second (optional); describe: ``describe(sim) -> str`` for the operation form;
     quiet: print nothing (not even ``say``); label: prefix of every line.
     """
-    every = 1
+    trigger = Periodic(1)
 
     def __init__(self, comm, total=None, seconds=10.0, n_elements=None, describe=None, quiet=False,
                  stream=None, label=""):

@@ -79,6 +79,7 @@ from pardem.engine.membrane_load import MembraneLoad
 from pardem.engine.open_cell import open_axes
 from pardem.engine.system import set_contact_params
 from pardem.engine.replicate import replicate
+from pardem.triggers import At, Or
 from pardem.parallel.exact_sum import exact_sum
 from pardem.physics import hertz_mindlin as hm
 from pardem.physics import local_strain, shear_band
@@ -436,21 +437,20 @@ def sample(case, st, mem, platens, record=None):
 
 
 class Sampler:
-    """Operation appending ``sample`` rows at the steps that are multiples of ``every`` (counted
-    from the run's start: ``Simulation.run`` calls an operation at those), at ``start`` and at
-    ``end``, from ``start`` on; a run cut in pieces samples the steps of the uncut one."""
+    """Operation appending ``sample`` rows on the steps of ``trigger`` (an int period [steps]: its
+    multiples, counted from step 0), at ``start`` and at ``end``, from ``start`` on; a run cut in
+    pieces samples the steps of the uncut one. A step already sampled is not sampled again."""
 
-    def __init__(self, case, st, mem, platens, every, start, on_row, end=None, record=None):
+    def __init__(self, case, st, mem, platens, trigger, start, on_row, end=None, record=None):
         self.case, self.st, self.mem, self.platens = case, st, mem, platens
-        self.every, self.start, self.on_row, self.end = int(every), int(start), on_row, end
+        self.start, self.on_row, self.end = int(start), on_row, end
+        self.trigger = Or([trigger, At([self.start] + ([] if end is None else [end]))])
         self.record = record
         self.last = -1
 
     def __call__(self, sim):
         step = sim.step_count
         if step < self.start or step == self.last:
-            return
-        if step % self.every != 0 and step not in (self.start, self.end):
             return
         self.last = step
         self.on_row(sample(self.case, self.st, self.mem, self.platens, self.record))

@@ -30,6 +30,7 @@ from pardem.engine.reducer import STRAIN_SUMS, Reducer, gradient_from_sums, stra
 from pardem.engine.simulation import Simulation
 from pardem.engine.system import BondModel, ContactModel, Decomposition, Particles, System, build
 from pardem.engine.state import FLAG_NEAR_PLATE, Bonds, Elements, Plates
+from pardem.triggers import as_trigger
 
 NEAR_PLATE_GAP = 0.5   # elements closer than this many radii to a plate at the start: not in the strain fit
 
@@ -539,11 +540,14 @@ def loading_warning(case):
 
 
 class SeriesSampler:
-    """Operation: samples the reducer every ``every`` steps and hands the sample to sinks."""
+    """Operation: samples the reducer on the steps of ``trigger`` (an int period [steps] or a
+    ``Trigger``) and after the last step of every run (``at_end``: the series ends on the final
+    state), and hands the sample to sinks; a step already sampled is not sampled again."""
+    at_end = True
 
-    def __init__(self, case, every, sinks=()):
+    def __init__(self, case, trigger, sinks=()):
         self.case = case
-        self.every = max(1, int(every))
+        self.trigger = as_trigger(trigger)
         self.sinks = list(sinks)
 
     def __call__(self, sim):

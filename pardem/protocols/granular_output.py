@@ -149,18 +149,6 @@ def rows_of(series, columns, int_columns=()):
             for i in range(n)]
 
 
-class Every:
-    """An operation calling ``op`` only at the multiples of ``every`` (``Simulation.run`` also calls
-    its operations once at the end of every run: the protocols run in many short runs)."""
-
-    def __init__(self, op, every):
-        self.op, self.every = op, int(every)
-
-    def __call__(self, sim):
-        if sim.step_count % self.every == 0:
-            self.op(sim)
-
-
 class Series:
     """Rank 0's series: ``NAME.csv`` and ``NAME.h5`` (units) in ``out``, rewritten from the rows of
     a restarted run, plus the rows in memory (for the checkpoints). ``append`` skips a row of a
@@ -203,11 +191,10 @@ def writers(case, deck, out, restart, state_fn):
                               start_step=sim.step_count)
     paraview = None
     if deck["output"]["vtk_every"]:
-        pv = ParaViewWriter(os.path.join(out, "paraview"), sim.comm, deck["output"]["vtk_every"],
-                            resume_step=sim.step_count if restart else None, dt=sim.dt)
-        paraview = Every(pv, deck["output"]["vtk_every"])
+        paraview = ParaViewWriter(os.path.join(out, "paraview"), sim.comm, deck["output"]["vtk_every"],
+                                  resume_step=sim.step_count if restart else None, dt=sim.dt)
         if sim.step_count == 0:
-            pv(sim)    # the initial state
+            paraview(sim)    # the initial state
     return writer, paraview
 
 

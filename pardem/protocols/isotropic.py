@@ -115,6 +115,7 @@ from pardem.physics import hertz_mindlin
 from pardem.physics.contact_frame import pair_geometry
 from pardem.engine.reducer import granular_measures
 from pardem.engine.relaxation import Fire
+from pardem.triggers import as_trigger
 from pardem.parallel.exact_sum import exact_sum
 from pardem.protocols import moduli_check
 from pardem.protocols.granular_output import (CHECKPOINT_SECTION, DOMAIN_SECTION, StepLimit, domain_checks,
@@ -533,10 +534,13 @@ class ServoStiffness:
     """Operation keeping the cell's ``servo_stiffness`` ``S = -dp/de = kd2 / (3 V) + 2 p`` [Pa] (in 2D
     ``kd2 / (2 V) + p``, with V = L_x L_y t and the in-plane p; the
     frictionless network's affine stiffness, ``Contacts.stiffness``) up to date, so that the
-    pressure servo caps its gain at ``1 / (2 S dt)`` (``PeriodicCell``). Collective."""
+    pressure servo caps its gain at ``1 / (2 S dt)`` (``PeriodicCell``), on the steps of ``trigger``
+    and after the last step of every run (``at_end``: the next run starts from an up-to-date S).
+    Collective."""
+    at_end = True
 
-    def __init__(self, every=10):
-        self.every = int(every)
+    def __init__(self, trigger=10):
+        self.trigger = as_trigger(trigger)
 
     def __call__(self, sim):
         kd2 = sim.contacts.global_affine_stiffness(sim.comm, sim.elements)

@@ -48,6 +48,7 @@ from pardem.config import DeckError, check_deck, raw_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.engine.reducer import gradient_from_sums, strain_sums
 from pardem.engine.state import FLAG_NEAR_PLATE
+from pardem.triggers import Periodic, as_trigger
 
 
 def shear_history(t, rate, ramp):
@@ -63,7 +64,7 @@ class ShearDrive:
 
     Driven rows are those with ``inv_mass == 0`` (the field travels with migrating elements).
     """
-    every = 1
+    trigger = Periodic(1)
 
     def __init__(self, a, b, centre_b, rate, ramp, turn=0.5):
         self.a, self.b = a, b
@@ -84,14 +85,16 @@ class ShearDrive:
 
 
 class ShearSampler:
-    """Operation: samples (time, gamma, sigma_ab) every ``every`` steps with one collective."""
+    """Operation: samples (time, gamma, sigma_ab) with one collective on the steps of ``trigger``
+    (an int period [steps] or a ``Trigger``) and after the last step of every run (``at_end``)."""
+    at_end = True
 
-    def __init__(self, comm, a, b, plane_b, area, origin, every, sinks=()):
+    def __init__(self, comm, a, b, plane_b, area, origin, trigger, sinks=()):
         self.comm, self.a, self.b = comm, a, b
         self.sinks = list(sinks)
         self.plane_b, self.area = float(plane_b), float(area)
         self.origin = np.asarray(origin, dtype=np.float64)
-        self.every = max(1, int(every))
+        self.trigger = as_trigger(trigger)
         self.samples = []
         self._local = np.empty(26)
 

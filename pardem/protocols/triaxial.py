@@ -38,6 +38,7 @@ from pardem.physics.contact_laws import critical_time_step, law_params
 from pardem.config import DeckError, Field, Schema, auto_or, boolean, choice, number, positive
 from pardem.protocols import deck_checks as dc
 from pardem.engine.periodic_cell import PeriodicCell
+from pardem.triggers import At, Or, as_trigger
 from pardem.parallel.exact_sum import exact_sum
 from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit, run_section
 
@@ -335,21 +336,21 @@ def sample(case):
 
 
 class Sampler:
-    """Operation recording ``sample`` rows every ``every`` steps (and at the end of each run;
-    with ``final``, only at the multiples of ``every``, the step ``final`` and a first row, so that
-    a run cut in pieces samples the steps of the uncut one)."""
+    """Operation recording ``sample`` rows on the steps of ``trigger`` (an int period [steps] or a
+    ``Trigger``) and after the last step of every run; with ``final``, on the steps of ``trigger``
+    and the step ``final`` only (a first row is the caller's), so that a run cut in pieces samples
+    the steps of the uncut one. A step already recorded is not recorded again."""
 
-    def __init__(self, case, every, rows=None, on_row=None, final=None):
-        self.case, self.every = case, int(every)
+    def __init__(self, case, trigger, rows=None, on_row=None, final=None):
+        self.case = case
+        self.trigger = as_trigger(trigger) if final is None else Or([trigger, At(final)])
+        self.at_end = final is None
         self.rows = [] if rows is None else rows
         self.on_row = on_row
         self.final = final
 
     def __call__(self, sim):
         if self.rows and self.rows[-1]["step"] == sim.step_count:
-            return
-        if (self.final is not None and self.rows and sim.step_count % self.every != 0
-                and sim.step_count != self.final):
             return
         row = sample(self.case)
         self.rows.append(row)
@@ -382,7 +383,7 @@ def load(case, deck, steps=None, rows=None, operations=(), progress=None, stop=N
         if sim.step_count >= stop:
             raise StepLimit(f"stopped at step {sim.step_count} (--steps {stop}), in the loading")
         n = min(n, stop - sim.step_count)
-    sim.run(n, [sampler, *operations])
+    sim.run(max(n, 0), [sampler, *operations])     # n < 0: restored past the end
     if sim.step_count < start + total:
         raise StepLimit(f"stopped at step {sim.step_count} (--steps {stop}), in the loading")
     return sampler.rows

@@ -39,7 +39,7 @@ if __name__ == "__main__":
     out = sys.argv[1]
     comm = pardem.Communicator()
     sim = pardem.build(comm, system())
-    sim.run(STEPS, operations=[ContactWriter(os.path.join(out, "contacts.h5"), every=EVERY)])
+    sim.run(STEPS, operations=[ContactWriter(os.path.join(out, "contacts.h5"), trigger=EVERY)])
     e = sim.elements
     n = e.n_owned
     np.savez(os.path.join(out, f"state-r{comm.rank:04d}.npz"), gid=e.gid[:n], f=e.f[:n], t=e.t[:n])

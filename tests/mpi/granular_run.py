@@ -61,7 +61,7 @@ energies = []
 
 
 class Record:
-    every = 1
+    trigger = 1
 
     def __call__(self, s):
         energies.append((s.step_count, s.kinetic_energy(), float(comm.sum(s.contact_energy)),
@@ -73,7 +73,7 @@ if a.checkpoint_at:
     k, path = int(a.checkpoint_at[0]), a.checkpoint_at[1]
 
     class Write:
-        every = k
+        trigger = k
 
         def __call__(self, s):
             if s.step_count == k:

@@ -32,7 +32,7 @@ if a.checkpoint_at:
     start = case.extras["triaxial_reference"]["step"]
 
     class Write:
-        every = 1
+        trigger = 1
 
         def __call__(self, s):
             if s.step_count == start + k:
