@@ -289,7 +289,7 @@ def test_wall_force_is_reduced_on_the_steps_an_operation_runs(comm):
     seen = []
 
     class Probe:
-        every = 3
+        trigger, at_end = 3, True
 
         def __call__(self, s):
             seen.append((s.step_count, s.plates.force.copy(), s.plates.forces(s.comm)))

@@ -188,7 +188,7 @@ def test_oscillation_at_rolling_frequency():
     spins = []
 
     class Sample:
-        every = 1
+        trigger = 1
 
         def __call__(self, s):
             spins.append(s.elements.w[:2, 2].copy())

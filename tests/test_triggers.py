@@ -204,3 +204,23 @@ def test_run_refuses_bad_step_counts_and_operations_without_trigger():
     with pytest.raises(ValueError, match="trigger of Record = 0"):
         sim.run(10, [Record(0)])
     assert sim.step_count == 3
+
+
+def test_a_second_run_from_step_0_does_not_add_the_initial_forces_again():
+    """``run(0)`` computes the forces of the initial state; a later run from step 0 starts from
+    them, not from their double (and a loaded sphere falls as if run once)."""
+    once, twice = one_sphere(), one_sphere()
+    for sim in (once, twice):
+        pardem.add_fixes(sim, pardem.Gravity((0.0, 0.0, -9.81)))
+    twice.run(0)
+    twice.run(0)
+    once.run(20)
+    twice.run(20)
+    assert np.array_equal(once.elements.x, twice.elements.x)
+    assert np.array_equal(once.elements.v, twice.elements.v)
+    # a fix added after run(0) acts on the initial forces at once, as between later runs
+    late = one_sphere()
+    late.run(0)
+    pardem.add_fixes(late, pardem.Gravity((0.0, 0.0, -9.81)))
+    late.run(20)
+    assert np.array_equal(once.elements.x, late.elements.x)

@@ -104,7 +104,7 @@ def add(sim, *fixes):
     """Append ``fixes`` to ``sim.fixes`` keeping the stages in order (loads before constraints;
     a fix without a ``stage`` attribute counts as a load). Returns ``sim.fixes``. Every rank calls it.
 
-    Between runs (``sim.step_count > 0``) the forces of the current state, which the next step's
+    Between runs (once a run computed them: ``sim.initial_forces``) the forces of the current state, which the next step's
     first half kick uses, were computed without the new fix: it is applied to them at once (then
     the constraints after it again), so that it acts from the next step on exactly as if it had
     been there from the start. (Appending to ``sim.fixes`` directly skips this: the fix then
@@ -118,7 +118,7 @@ def add(sim, *fixes):
         while at > 0 and getattr(sim.fixes[at - 1], "stage", LOAD) > stage:
             at -= 1
         sim.fixes.insert(at, fix)
-        if sim.step_count > 0:
+        if sim.step_count > 0 or getattr(sim, "initial_forces", False):
             fix.post_force(sim)
             for later in sim.fixes[at + 1:]:
                 if getattr(later, "stage", LOAD) > LOAD:   # constraints are idempotent

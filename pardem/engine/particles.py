@@ -404,6 +404,7 @@ def _recompute_forces(sim):
     """The forces of the current state for the next first half kick (after a run; at step 0
     ``Simulation.run`` computes them), the tangential springs kept as stored."""
     if sim.step_count == 0:
+        sim.initial_forces = False     # the next run computes them from the new state
         return
     e = sim.elements
     e.f[:] = 0.0

@@ -138,6 +138,9 @@ class Simulation:
         self.n_elements = None          # the global element count at the build or restore
         self.operations = []            # operations run by every ``run`` (writers, logs, ...)
         self._globals_step = -1         # step of the last ``_reduce_globals``
+        # the forces of the step-0 state are computed (by the first ``run``): a second run from
+        # step 0 must not add them again, nor move the tangential springs twice
+        self.initial_forces = False
 
     @property
     def particles(self):
@@ -365,10 +368,14 @@ class Simulation:
         operations = list(self.operations) + list(operations)
         triggers = [_trigger_of(op) for op in operations]
         at_end = [bool(getattr(op, "at_end", False)) for op in operations]
-        if self.step_count == 0:
+        if self.step_count == 0 and not self.initial_forces:
             if self.contacts is not None and self.domain is None and self.contacts.vl.builds == 0:
                 self.rebuild_contacts()
+            e = self.elements
+            e.f[:] = 0.0            # a state restored at step 0 holds the stored forces
+            e.t[:] = 0.0
             self.compute_forces()   # forces of the initial state for the first half kick
+            self.initial_forces = True
         end = self.step_count + int(n_steps)
         look = [t.next_after(self.step_count) for t in triggers]   # None: never again
         due = min((s for s in look if s is not None), default=None)
