@@ -195,12 +195,12 @@ def ran_to_end(p):
 def granular_case(comm, positions, radii, density, law, params, box_lo, box_length, dt, skin,
                   periodic=(True, True, True), rate=(0.0, 0.0, 0.0), servo=None, viscous_damping=0.0,
                   velocities=None, angular_velocities=None, slab_axis=0, balance_every=0, dimension=3,
-                  thickness=None, orientation=True):
+                  thickness=None, orientation=True, allow_overlaps=False):
     """A ``GranularCase`` of spheres in contact in a cell, through the one builder
     (``pardem.engine.system.build``): the tests' shorthand for the ``System`` it describes."""
     from pardem.engine.granular import build_case
     from pardem.engine.system import Cell, ContactModel, Decomposition, Integration, Particles, System
-    system = System(Particles(positions, radii, density, velocities, angular_velocities),
+    system = System(Particles(positions, radii, density, velocities, angular_velocities, allow_overlaps),
                     contacts=ContactModel(law, dict(params)),
                     cell=Cell(box_lo, box_length, periodic, rate, servo, thickness),
                     integration=Integration(dt=dt, viscous_damping=viscous_damping, orientation=orientation),

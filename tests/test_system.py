@@ -169,3 +169,19 @@ def test_the_builder_raises_nothing_but_clear_errors(positions, radii, density, 
         pardem.build(pardem.Communicator(), system)
     except (ValueError, TypeError) as err:
         assert str(err).strip(), type(err)
+
+
+def test_deep_overlaps_are_refused_unless_allowed(comm):
+    """Two unbonded spheres overlapping by 0.8 R (a radius given as a diameter looks like this)
+    are refused before any work; a gas a servo will separate may ask for it."""
+    x = [[0.0, 0.0, 0.0], [1.2 * R, 0.0, 0.0]]
+    law = pardem.ContactModel("hertz_mindlin", dict(HERTZ))
+    with pytest.raises(ValueError, match="overlap by more than 0.5 of the smaller radius"):
+        pardem.build(comm, pardem.System(pardem.Particles(x, R, RHO), contacts=law))
+    sim = pardem.build(comm, pardem.System(pardem.Particles(x, R, RHO, allow_overlaps=True), contacts=law))
+    assert sim.n_elements == 2
+    with pytest.raises(ValueError, match="coincide"):
+        pardem.build(comm, pardem.System(pardem.Particles([[0, 0, 0], [0, 0, 0]], R, RHO, allow_overlaps=True),
+                                         contacts=law))
+    with pytest.raises(ValueError, match="allow_overlaps must be True or False"):
+        pardem.build(comm, pardem.System(pardem.Particles(x, R, RHO, allow_overlaps="yes"), contacts=law))

@@ -71,6 +71,18 @@ def lookup(keys, table_keys, table_values, width):
     return out
 
 
+def check_period(cell, reach):
+    """ValueError unless every periodic edge of ``cell`` is at least twice the contact reach
+    ``reach`` = 2 R_max + skin [m] (a grain would touch its own image twice). Checked with the
+    global reach, the same on every rank (the list's own check uses this rank's largest radius:
+    ranks could disagree and leave the others waiting)."""
+    short = cell.periodic & (cell.length < 2.0 * reach)
+    if np.any(short):
+        a = int(np.argmax(short))
+        raise ValueError(f"periodic axis {'xyz'[a]}: period {cell.length[a]:.6g} m is "
+                         f"shorter than twice the contact reach 2 R_max + skin = {reach:.6g} m")
+
+
 class Contacts:
     """Contacts of one rank's elements under ``law`` (a ``contact_laws`` row) with ``params``.
 
@@ -148,13 +160,7 @@ class Contacts:
             raise ValueError("element gids must be below 2^31 for the contact keys")
         kw = {}
         if self.cell is not None:
-            # checked with the global reach, the same on every rank (the list's own check uses
-            # this rank's largest radius: ranks could disagree and leave the others waiting)
-            short = self.cell.periodic & (self.cell.length < 2.0 * self.cut)
-            if np.any(short):
-                a = int(np.argmax(short))
-                raise ValueError(f"periodic axis {'xyz'[a]}: period {self.cell.length[a]:.6g} m is "
-                                 f"shorter than twice the contact reach 2 R_max + skin = {self.cut:.6g} m")
+            check_period(self.cell, self.cut)
             kw = {"box_lo": self.cell.lo, "box_hi": self.cell.hi}
         self.vl.rebuild(e.x, e.radius, e.gid, e.n_owned, e.n_total, **kw)
         pairs, shifts = self.vl.pairs, self.vl.shifts

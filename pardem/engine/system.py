@@ -28,7 +28,7 @@ import numpy as np
 
 from pardem.engine import inputs
 from pardem.engine.bonding import BeamMaterial, make_bonds
-from pardem.engine.contacts import Contacts
+from pardem.engine.contacts import Contacts, check_period
 from pardem.engine.critical_step import contact_law_name, critical_time_step_of
 from pardem.engine.periodic_cell import PeriodicCell
 from pardem.engine.plane import PlaneConstraint, check_dimension, in_plane, plane_of
@@ -53,12 +53,15 @@ class Particles:
 
     positions [n, 3] [m] (or [n, 2] in 2D); radii [n] or scalar [m]; density [kg/m^3];
     velocities [n, 3] [m/s] and angular_velocities [n, 3] [rad/s] (default at rest).
+    allow_overlaps : accept unbonded spheres overlapping by more than half the smaller radius (a
+    random gas a servo or a relaxation will pull apart; coincident centres are refused anyway).
     """
     positions: object
     radii: object
     density: float
     velocities: object = None
     angular_velocities: object = None
+    allow_overlaps: bool = False
 
 
 @dataclass
@@ -254,6 +257,13 @@ def _positive(value, name, unit):
     return float(value)
 
 
+def _skin(dec, radii):
+    """The neighbour-list and ghost skin [m]: the decomposition's, or 0.2 mean radius."""
+    if dec.skin is None:
+        return SKIN_RADII * float(radii.mean())
+    return _positive(dec.skin, "Decomposition.skin", "[m] (or None: 0.2 mean radius)")
+
+
 # -- the builder ----------------------------------------------------------------------------
 
 def build(comm, system):
@@ -288,10 +298,15 @@ def build(comm, system):
     pairs, material, frame = _bond_model(system.bonds, n)
     # coincident centres, or unbonded spheres overlapping by more than half the smaller radius
     # (minimum images in a periodic cell), are refused before any work
+    if not isinstance(p.allow_overlaps, (bool, np.bool_)):
+        raise ValueError(f"Particles.allow_overlaps must be True or False, got {p.allow_overlaps!r}")
+    deepest = math.inf if p.allow_overlaps else inputs.MAX_OVERLAP
     if cell is None:
-        inputs.check_overlaps(x, r, pairs)
+        inputs.check_overlaps(x, r, pairs, max_overlap=deepest)
     else:
-        inputs.check_overlaps(x, r, pairs, cell.lo, cell.length, cell.periodic)
+        if system.contacts is not None:
+            check_period(cell, 2.0 * float(r.max()) + _skin(dec, r))
+        inputs.check_overlaps(x, r, pairs, cell.lo, cell.length, cell.periodic, max_overlap=deepest)
     if len(pairs) and cell is not None and np.any(cell.periodic):
         raise ValueError("System.bonds with a periodic Cell: bonds across a periodic boundary are not "
                          "supported; expected a cell without periodic axes, or no bonds")
@@ -308,8 +323,7 @@ def build(comm, system):
         else:
             contact_law(model.law)    # a known law, before any work
     _check_integration(integ)
-    skin = SKIN_RADII * float(r.mean()) if dec.skin is None else _positive(dec.skin, "Decomposition.skin",
-                                                                           "[m] (or None: 0.2 mean radius)")
+    skin = _skin(dec, r)
     slab_axis = _slab_axis(dec.slab_axis, x, r, dim)
 
     gids = np.arange(n, dtype=np.int64)

@@ -55,7 +55,8 @@ else:
         rate = (a.rate,) * 3
     case = granular_case(comm, pos, radii, 2500.0, a.law, params, np.zeros(3), np.full(3, L), 1e-8,
                           0.05 * R, rate=rate, servo=servo, velocities=vel,
-                          angular_velocities=omega, slab_axis=a.slab_axis, balance_every=50)
+                          angular_velocities=omega, slab_axis=a.slab_axis, balance_every=50,
+                          allow_overlaps=a.random)    # uniform random centres overlap
 sim = case.sim
 energies = []
 
