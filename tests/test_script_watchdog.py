@@ -117,6 +117,7 @@ def test_one_rank_starts_nothing():
 
 @pytest.mark.parametrize("text", ["abc", "-1", "nan", "inf"])
 def test_a_bad_limit_in_the_environment_is_one_clear_error(monkeypatch, text):
+    monkeypatch.setattr(watchdog, "_script_seconds", None)   # a limit set by an earlier test's configure()
     monkeypatch.setenv(watchdog.ENV, text)
     with pytest.raises(ValueError, match=f"{watchdog.ENV}=.*expected a number of seconds >= 0"):
         watchdog.script_seconds()

@@ -208,7 +208,8 @@ def test_damped_bound(material, edge, zeta):
 def _contact_case(law_name, n=3, seed=3):
     """A jittered cubic cluster of n^3 spheres of random radii, neighbours overlapping (no cell)."""
     from pardem.engine.contacts import Contacts
-    from pardem.engine.granular import law_params, simple_cubic
+    from pardem.engine.granular import simple_cubic
+    from pardem.physics.contact_laws import law_params
     from pardem.physics import hertz_mindlin, linear_contact
     rng = np.random.default_rng(seed)
     pos, _ = simple_cubic(n, R, spacing=1.96, jitter=0.02, seed=seed)
@@ -270,7 +271,7 @@ def test_contact_bound_of_one_pair_is_exact():
     """Two equal Hertz spheres: the bound 2 k / m with k = 2 E* sqrt(R* delta) is the pair's
     omega^2, k from a difference of the Hertz force 4/3 E* sqrt(R*) delta^1.5."""
     from pardem.engine.contacts import Contacts
-    from pardem.engine.granular import law_params
+    from pardem.physics.contact_laws import law_params
     from pardem.physics import hertz_mindlin
     delta = 1e-4 * R
     e = Elements.from_spheres(np.array([[0.0, 0.0, 0.0], [2 * R - delta, 0.0, 0.0]]), R, 2500.0)
