@@ -17,7 +17,7 @@ from pardem.engine import snapshot
 from pardem.engine.contacts import Contacts, pair_keys
 from pardem.engine.granular import GranularCase
 from pardem.engine.periodic_cell import PeriodicCell
-from pardem.engine.snapshot import Parts, _decoded
+from pardem.engine.snapshot import Parts
 from pardem.engine.state import Bonds, Elements
 from pardem.engine.system import System, describe
 from pardem.engine.system import restore as restore_system
@@ -115,12 +115,6 @@ def load_case(comm, path, slab_axis=None, meta=None):
     meta = checkpoint.inspect(path, comm=comm) if meta is None else meta
     sim = load(comm, path, slab_axis=slab_axis, meta=meta)
     return GranularCase(sim, dict(meta["constants"].get("case") or {}))
-
-
-def cell_of(meta):
-    """The ``PeriodicCell`` stored in checkpoint attributes ``meta``, or None."""
-    state = meta.get("cell")
-    return None if state is None else PeriodicCell.from_state(_decoded(state))
 
 
 def read(comm, path, meta, slab_axis, contacts=None, slab_comm=None, bond_options=None):

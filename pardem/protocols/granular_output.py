@@ -20,8 +20,7 @@ from pardem.config import DeckError, Field, auto_or, choice, number, positive, r
 from pardem import restart
 from pardem.protocols import deck_checks
 from pardem.io import checkpoint
-from pardem.io.checkpoint_writer import DECK_SECTION, CheckpointWriter
-from pardem.io.paraview import ParaViewWriter
+from pardem.io.checkpoint_writer import DECK_SECTION
 from pardem.io.series import SeriesCSV, dict_row
 from pardem.io.series_h5 import SeriesH5
 
@@ -179,23 +178,6 @@ class Series:
         if self.root:
             self.csv.close()
             self.h5.close()
-
-
-def writers(case, deck, out, restart, state_fn):
-    """The checkpoint writer (``state_fn() -> (deck, state, rows, columns)``) and the ParaView
-    operation (or None) of a granular run in ``out``."""
-    ck = deck["checkpoint"]
-    sim = case.sim
-    writer = CheckpointWriter(lambda: payload(case, *state_fn()), os.path.join(out, "checkpoints"),
-                              ck["every_steps"], ck["every_seconds"], ck["keep"], ck["driver"],
-                              start_step=sim.step_count)
-    paraview = None
-    if deck["output"]["vtk_every"]:
-        paraview = ParaViewWriter(os.path.join(out, "paraview"), sim.comm, deck["output"]["vtk_every"],
-                                  resume_step=sim.step_count if restart else None, dt=sim.dt)
-        if sim.step_count == 0:
-            paraview(sim)    # the initial state
-    return writer, paraview
 
 
 class StageClock:
