@@ -293,6 +293,133 @@ class Particles:
             _rebuild(sim)
         _recompute_forces(sim)
 
+    # -- adding and removing particles (collective) -----------------------------------------
+
+    def add(self, positions, radii, velocities=None, angular_velocities=None, properties=None,
+            allow_overlaps=False):
+        """Add particles to the running simulation and return their global ids [k] (int64):
+        ``max(gids) + 1`` upwards, in the order given. Collective: every rank passes the same arrays
+        (checked: ValueError otherwise).
+
+        positions [k, 3] [m] (or [k, 2] in 2D), radii [k] or scalar [m] (the grains' density is
+        the system's), velocities [k, 3] [m/s] and angular_velocities [k, 3] [rad/s] (default at
+        rest), properties ``{name: [k] or [k, m]}`` values of the custom arrays (``add_property``;
+        those not given start at 0). Refused (one ValueError, before any change) like the
+        builder's input (``pardem.engine.inputs.check_overlaps``): a new centre coinciding with
+        another particle's, or (unless ``allow_overlaps``) a new particle overlapping a new or an
+        existing one by more than half the smaller radius, with the count of such pairs; a radius
+        whose critical time step (contact law, walls) is below ``sim.dt``. A radius above every
+        radius so far widens the contact reach and the ghost range (stored in checkpoints).
+
+        Then the rows go to the ranks owning their places, ghosts and contact lists are rebuilt,
+        and the forces are recomputed as after ``set("positions")``; the other particles keep their
+        state, contact histories and bonds.
+        """
+        from pardem.engine import inputs
+        from pardem.engine.plane import dimension_of, in_plane
+        from pardem.engine.state import Elements
+        sim = self._sim
+        comm, e = sim.comm, sim.elements
+        dim = dimension_of(sim)
+        if np.size(positions) == 0:
+            return np.zeros(0, np.int64)
+        x = inputs.check_positions(positions, dim, "add: positions")
+        k = len(x)
+        r = inputs.check_radii(radii, k, "add: radii")
+        v = inputs.check_vectors(velocities, k, "add: velocities", "[m/s]", dimension=dim)
+        w = inputs.check_vectors(angular_velocities, k, "add: angular_velocities", "[rad/s]", dimension=dim)
+        if dim == 2:
+            v = in_plane(v, (2,), "add: velocities")
+            w = in_plane(w, (0, 1), "add: angular_velocities")
+        props = self._new_properties(properties, k)
+        digest = _digest("add", np.concatenate([x.ravel(), r, np.zeros(0) if v is None else v.ravel(),
+                                                np.zeros(0) if w is None else w.ravel()]
+                                               + [props[n].ravel() for n in sorted(props)]), None)
+        if any(d != digest for d in comm.allgather(digest)):
+            raise ValueError("add: the ranks passed different particles; every rank must pass the same "
+                             "global arrays (e.g. draw them from one seed)")
+        if not isinstance(allow_overlaps, (bool, np.bool_)):
+            raise ValueError(f"add: allow_overlaps must be True or False, got {allow_overlaps!r}")
+        x_old, r_old = self.positions, self.radii
+        cell = sim.cell
+        box = {} if cell is None else {"box_lo": cell.lo, "box_length": cell.length, "periodic": cell.periodic}
+        deepest = np.inf if allow_overlaps else inputs.MAX_OVERLAP
+        try:
+            inputs.check_overlaps(x, r, max_overlap=deepest, **box)
+        except ValueError as err:
+            raise ValueError(f"add: new particles: {err}") from None
+        _check_overlaps_with(x, r, x_old, r_old, deepest, box)
+        r_all = max(float(r.max()), float(r_old.max()) if len(r_old) else 0.0)
+        _check_step(sim, r, r_all)
+        g0 = int(comm.max(float(e.gid[:e.n_owned].max()) if e.n_owned else -1.0)) + 1
+        gids = g0 + np.arange(k, dtype=np.int64)
+        _widen_reach(sim, r_all)
+        extra = None
+        if comm.rank == 0:        # the migration takes every row to its owner
+            extra = Elements.from_spheres(x, r, sim.density, gids)
+            if v is not None:
+                extra.v[:] = v
+            if w is not None:
+                extra.w[:] = w
+            extra.wall_h = np.zeros((k,) + e.wall_h.shape[1:])
+            extra.properties = props
+        else:
+            extra = Elements.from_spheres(np.zeros((0, 3)), np.zeros(0), sim.density, np.zeros(0, np.int64))
+            extra.wall_h = np.zeros((0,) + e.wall_h.shape[1:])
+            extra.properties = {n: a[:0] for n, a in props.items()}
+        sim.elements = e.owned_rows(extra=extra)
+        _rows_changed(sim)
+        sim.n_elements = (sim.n_elements or 0) + k
+        _recompute_forces(sim)
+        return gids
+
+    def remove(self, gids):
+        """Remove the particles of global ids ``gids`` [k] (unique; every rank passes the same),
+        with their bonds and their contact histories; the others keep their gids and state.
+        Collective. The forces are then recomputed as after ``set("positions")``. ValueError for an
+        unknown gid, or for removing every particle."""
+        from pardem.engine.state import Bonds
+        req = _gid_array(gids, unique=True)
+        sim = self._sim
+        comm, e = sim.comm, sim.elements
+        same = comm.allgather(_digest("remove", np.zeros(0), req))
+        if any(d != same[0] for d in same):
+            raise ValueError("remove: the ranks passed different gids; every rank must pass the same")
+        everyone = np.sort(comm.allgatherv(np.ascontiguousarray(e.gid[:e.n_owned])))
+        pos = _positions(everyone, req)
+        if np.any(pos < 0):
+            raise self._unknown(req[pos < 0], "remove: gids", everyone)
+        if len(req) == 0:
+            return
+        if len(req) == len(everyone):
+            raise ValueError(f"remove: gids name all {len(everyone)} particles; a simulation keeps at least one")
+        b = sim.bonds
+        if b is not None and b.n:
+            keep_b = ~(np.isin(b.gid_i, req) | np.isin(b.gid_j, req))
+            if not np.all(keep_b):
+                sim.bonds = Bonds.unpack([b.pack(keep_b)], **b.flags())
+        sim.elements = e.owned_rows(keep=~np.isin(e.gid[:e.n_owned], req))
+        _rows_changed(sim)
+        sim.n_elements = (sim.n_elements or len(everyone)) - len(req)
+        _recompute_forces(sim)
+
+    def _new_properties(self, given, k):
+        """The custom arrays of ``k`` new rows: ``given[name]`` or zeros, every custom name."""
+        have = self._sim.elements.properties
+        given = {} if given is None else given
+        if not isinstance(given, dict) or any(n not in have for n in given):
+            raise ValueError(f"add: properties must be a dict of custom arrays among "
+                             f"{_quoted(sorted(have)) or 'none (add_property first)'}, got {given!r:.80}")
+        out = {}
+        for name, a in have.items():
+            tail = a.shape[1:]
+            vals = np.zeros((k,) + tail) if name not in given else np.array(given[name], dtype=np.float64)
+            if vals.shape != (k,) + tail or not np.all(np.isfinite(vals)):
+                raise ValueError(f"add: properties[{name!r}] must be finite of shape {(k,) + tail}, got "
+                                 f"shape {vals.shape}")
+            out[name] = np.ascontiguousarray(vals)
+        return out
+
     # -- custom arrays ----------------------------------------------------------------------
 
     def add_property(self, name, shape=(), default=0.0):
@@ -398,6 +525,85 @@ def _rebuild(sim):
             sim.bonds = b
     elif sim.contacts is not None:
         sim.rebuild_contacts()
+
+
+def _check_overlaps_with(x, r, x_old, r_old, deepest, box):
+    """ValueError (on every rank: same inputs) if a new sphere's centre coincides with an existing
+    one's, or it overlaps one by more than ``deepest`` of the smaller radius (the builder's bounds,
+    ``pardem.engine.inputs``); with the count and the first pair."""
+    from pardem.domains.packing import overlaps
+    from pardem.engine.inputs import COINCIDENT
+    i, j, depth = overlaps(x, r, x_old, r_old, **box)
+    small = np.minimum(r[i], r_old[j])
+    dist = r[i] + r_old[j] - depth
+    for bad, what in ((dist < COINCIDENT * small, f"coincide with (centres closer than {COINCIDENT:g} of the "
+                                                  "smaller radius)"),
+                      (depth > deepest * small, f"overlap by more than {deepest:g} of the smaller radius")):
+        if np.any(bad):
+            m = int(np.argmax(bad))
+            raise ValueError(f"add: {int(bad.sum())} pair(s) of a new and an existing particle {what}; first: "
+                             f"new particle {int(i[m])} (radius {r[i[m]]:.4g} m) and the particle of row {int(j[m])} "
+                             f"in gid order (radius {r_old[j[m]]:.4g} m), overlap {depth[m]:.4g} m; "
+                             "insert where there is room (pardem.random_pack with existing=...)")
+
+
+def _check_step(sim, r, r_all):
+    """ValueError when ``sim.dt`` is above the critical step of new radii ``r`` [k] [m] (contact law;
+    walls at the stiffness of the largest radius ``r_all`` [m] on the lightest grain); lowers
+    ``sim.dt_critical`` to it."""
+    from pardem.engine.critical_step import contact_law_name
+    from pardem.physics.contact_laws import critical_time_step
+    from pardem.physics.timestep import critical_time_step as verlet_step
+    from pardem.physics.timestep import max_tau
+    comm, e = sim.comm, sim.elements
+    dt_c = np.inf
+    if sim.contacts is not None:
+        dt_c = critical_time_step(contact_law_name(sim.contacts), sim.contacts.params, np.asarray(r), sim.density)
+    if callable(getattr(sim.plates, "stiffness", None)):
+        m_new = sim.density * 4.0 / 3.0 * np.pi * float(r.min()) ** 3
+        m_min = min(m_new, float(comm.min(float(e.mass[:e.n_owned].min()) if e.n_owned else np.inf)))
+        tau = float(comm.max(max_tau(sim.bonds if sim.bonds is not None else Bonds.empty())))
+        dt_c = min(dt_c, verlet_step(sim.plates.stiffness(r_all) / m_min, tau))
+    if not sim.dt <= dt_c:
+        raise ValueError(f"add: radii down to {float(r.min()):.4g} m have a critical time step {dt_c:.6g} s below "
+                         f"sim.dt = {sim.dt:.6g} s: expected radii whose critical step is >= dt")
+    if sim.dt_critical is not None:
+        sim.dt_critical = float(min(sim.dt_critical, dt_c))
+
+
+def _widen_reach(sim, r_all):
+    """Contact reach ``2 R_max + skin`` and ghost range for the largest radius ``r_all`` [m]."""
+    if sim.contacts is None or sim.reach is None:
+        return
+    reach = 2.0 * r_all + sim.contacts.skin
+    if reach <= sim.reach:
+        return
+    if sim.cell is not None:
+        from pardem.engine.contacts import check_period
+        try:
+            check_period(sim.cell, reach)
+        except ValueError as err:
+            raise ValueError(f"add: radius {r_all:.4g} m: {err}") from None
+    sim.reach = reach
+    if sim.contacts.cut > 0.0:
+        sim.contacts.cut = reach
+    sim.ghost_range = max(sim.ghost_range or 0.0, reach)
+    if sim.domain is not None:
+        sim.domain.ghost_range = max(sim.domain.ghost_range, reach)
+
+
+def _rows_changed(sim):
+    """After rows were added or removed (owned rows only, ghosts dropped): migration, ghosts, bond
+    links and the contact list."""
+    if sim.domain is not None:
+        _rebuild(sim)
+        return
+    if sim.bonds is not None:
+        sim.bonds.relink(sim.elements.gid)
+    if sim.contacts is not None:
+        sim.rebuild_contacts()     # wraps into the cell
+    elif sim.cell is not None:
+        sim.cell.wrap(sim.elements)
 
 
 def _recompute_forces(sim):

@@ -119,6 +119,17 @@ class Elements:
         e.refresh_rotations()
         return e
 
+    def owned_rows(self, keep=None, extra=None):
+        """New ``Elements`` of the owned rows (those where the mask ``keep`` [n_owned] is True, all by
+        default) followed by the rows of ``extra`` (an ``Elements``, all taken as owned); ghosts
+        are dropped. The rows added or removed during a run (``sim.particles.add`` / ``remove``)
+        pass here, then through the same migration and ghost rebuild as every row."""
+        rows = np.arange(self.n_owned) if keep is None else np.nonzero(keep)[0]
+        parts = [self.pack(rows)]
+        if extra is not None:
+            parts.append(extra.pack(slice(0, extra.n_total)))
+        return Elements.unpack(parts, len(rows) + (0 if extra is None else extra.n_total))
+
     def refresh_rotations(self, start=0, stop=None):
         """Recompute the cached rotation matrices of rows ``[start, stop)`` from ``q``."""
         _refresh_rot(self.q, self.rot, start, self.n_total if stop is None else stop)
