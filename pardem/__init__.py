@@ -91,6 +91,20 @@ _EXPORTS = {
     "compact_domain": ("pardem.domains.compact", "compact_domain"),
     "simple_cubic": ("pardem.engine.granular", "simple_cubic"),
     "lrt_frame": ("pardem.physics.anisotropy", "lrt_frame"),
+    # particle factories: size distributions (radii [m], by number or by volume), regions,
+    # random packings without overlap, insertion and deletion during a run
+    # (sim.particles.add / remove are the engine's entry points)
+    "Uniform": ("pardem.domains.distributions", "Uniform"),
+    "Normal": ("pardem.domains.distributions", "Normal"),
+    "LogNormal": ("pardem.domains.distributions", "LogNormal"),
+    "Discrete": ("pardem.domains.distributions", "Discrete"),
+    "Bidisperse": ("pardem.domains.distributions", "Bidisperse"),
+    "BoxRegion": ("pardem.domains.regions", "Box"),
+    "CylinderRegion": ("pardem.domains.regions", "Cylinder"),
+    "SphereRegion": ("pardem.domains.regions", "Sphere"),
+    "random_pack": ("pardem.domains.packing", "random_pack"),
+    "Insert": ("pardem.engine.insertion", "Insert"),
+    "Delete": ("pardem.engine.insertion", "Delete"),
 }
 
 __all__ = ["__version__", *_EXPORTS]

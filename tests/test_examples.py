@@ -130,6 +130,51 @@ def test_pour_gives_the_same_bed_on_two_ranks(pour_one_rank):
 
 
 @pytest.fixture(scope="module")
+def pour_cylinder_one_rank():
+    return run("pour_cylinder.py", "--quick")
+
+
+def test_pour_cylinder_inserts_the_distribution_and_settles(pour_cylinder_one_rank):
+    res = pour_cylinder_one_rank
+    assert res.returncode == 0, res.stdout + res.stderr
+    out = res.stdout
+    # every grain inserted during the run (the first batch at the build), none left without room
+    assert number(r"(\d+) spheres inserted", out) == 500
+    assert number(r"in (\d+) batches", out) >= 5
+    assert number(r"(\d+) without room", out) == 0
+    # the radii are a sample of the requested truncated log-normal law (KS against scipy's CDF)
+    assert number(r"Kolmogorov-Smirnov p = " + FLOAT, out) > 1e-3
+    assert number(r"kinetic / \(M g <R>\) " + FLOAT, out) < 1e-6       # settled
+    # frictionless walls: the floor carries the weight, to the momentum bound of examples/pour.py
+    rel = number(r"relative " + FLOAT, out)
+    tol = number(r"tolerance " + FLOAT, out)
+    assert abs(rel) <= tol and tol < 5e-3
+    # between random loose packing (0.555) and random close packing of this dispersion (0.65)
+    phi = number(r"bulk packing fraction " + FLOAT, out)
+    assert 0.55 <= phi <= 0.65
+    assert number(r"whole-bed packing fraction " + FLOAT, out) < phi
+    assert "PASS" in out
+
+
+@pytest.mark.mpi
+@pytest.mark.skipif(MPIEXEC is None, reason="no mpiexec")
+def test_pour_cylinder_gives_the_same_bed_on_two_ranks(pour_cylinder_one_rank):
+    one = pour_cylinder_one_rank
+    two = run("pour_cylinder.py", "--quick", ranks=2)
+    assert two.returncode == 0, two.stdout + two.stderr
+    assert "2 rank(s)" in two.stdout
+    # the same particles inserted (one seed, drawn identically on every rank) and the same
+    # trajectory bits (reproducible contacts): the same step count, fraction and KS statistic
+    for pattern in (r"(\d+) steps of", r"bulk packing fraction " + FLOAT, r"Kolmogorov-Smirnov p = " + FLOAT,
+                    r"kinetic / \(M g <R>\) " + FLOAT):
+        assert number(pattern, two.stdout) == number(pattern, one.stdout), pattern
+    # the floor force is a float sum over rows, then ranks: it agrees to round-off
+    assert number(r"floor force " + FLOAT, two.stdout) == pytest.approx(number(r"floor force " + FLOAT, one.stdout),
+                                                                       rel=1e-12)
+    assert "PASS" in two.stdout
+
+
+@pytest.fixture(scope="module")
 def fracture_one_rank():
     return run("fracture.py", "--quick")
 
