@@ -173,6 +173,19 @@ def test_removal_drops_contact_histories_and_keeps_the_others(comm):
     sim.run(10)
 
 
+def test_removal_recomputes_the_forces_of_those_left(comm):
+    # a column of two grains resting on the floor: once the lower one is gone, the upper one
+    # touches nothing and its force is its weight alone, before any step
+    x = np.array([[0.01, 0.01, RAD], [0.01, 0.01, 3 * RAD]])
+    sim = _sim(comm, x, RAD)
+    sim.run(3000)
+    f_before = sim.particles.get("forces", [1])[0]
+    assert f_before[2] > -1e-3 * RHO * 4 / 3 * np.pi * RAD**3 * 9.81      # at rest on the lower grain
+    sim.particles.remove([0])
+    m = sim.particles.masses[0]
+    assert np.array_equal(sim.particles.forces[0], np.array([0.0, 0.0, -m * 9.81]))
+
+
 def test_removal_drops_the_bonds_of_removed_particles(comm):
     n = 7
     x = np.zeros((n, 3))
@@ -225,10 +238,11 @@ def test_checkpoint_after_insertion_restarts_bit_for_bit(comm, tmp_path):
     dist = D.Uniform(0.8 * RAD, 1.2 * RAD)
     sim = _sim(comm, x, r)
     sim.particles.add_property("tag", default=1.0)
-    sim.run(300, operations=[Insert(region, dist, trigger=100, n=20, seed=2)])
+    pour = Insert(region, dist, trigger=100, n=20, seed=2)
+    sim.run(300, operations=[pour])
     path = str(tmp_path / "poured.h5")
     pardem.save(sim, path)
-    sim.run(300, operations=[Insert(region, dist, trigger=100, n=20, seed=2)])
+    sim.run(300, operations=[pour])       # the same object goes on; the restart makes a new one
     back = pardem.load(comm, path)
     # the restored forces hold gravity already: appended, not add_fixes (which applies a fix
     # added after a run to the current forces, so gravity twice in the first half kick)
