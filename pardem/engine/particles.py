@@ -22,6 +22,11 @@ global id (gid), whatever rank owns each particle:
   with its particle between ranks, ghosts copy it at every rebuild, and checkpoints
   (``pardem.save``/``load``, protocol checkpoints) store it as ``/elements/property_<name>``. No
   kernel reads it.
+* ``add(positions, radii, ...)`` and ``remove(gids)``: particles added to or removed from the
+  running simulation (collective; every rank passes the same arrays): new gids above the current
+  largest, overlaps refused as the builder refuses them (with a count), bonds and contact
+  histories of removed particles dropped, ghosts and lists rebuilt, forces recomputed as after
+  ``set("positions")``; ``pardem.engine.insertion`` (``Insert``, ``Delete``) calls them during runs.
 * ``local``: this rank's owned rows only (``LocalView``: views, no copy, no communication), for
   advanced use (one's own per-particle computation between runs); ghosts are never part of it.
 
