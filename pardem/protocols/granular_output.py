@@ -20,12 +20,10 @@ from pardem.errors import StepLimit  # noqa: F401 - the protocols raise it from 
 from pardem.config import DeckError, Field, auto_or, choice, number, positive, restart_differences
 from pardem import restart
 from pardem.protocols import deck_checks
+from pardem.protocols.output_deck import CHECKPOINT_SECTION  # noqa: F401 - the granular schemas read it here
 from pardem.io import checkpoint
-from pardem.io.checkpoint_writer import DECK_SECTION
 from pardem.io.series import SeriesCSV, dict_row
 from pardem.io.series_h5 import SeriesH5
-
-CHECKPOINT_SECTION = DECK_SECTION   # the [checkpoint] section, shared with compress
 
 
 def dimension_value(name, v):
