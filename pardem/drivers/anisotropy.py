@@ -139,10 +139,18 @@ class Anisotropy(StudyDriver):
     summary_name = "anisotropy.json"
 
     def read_deck(self, run):
-        args = run.args
-        return cli.read_deck(run.comm, COMPRESS_SCHEMA, args, overrides=study.QUICK_SET if args.quick else [],
+        """The deck and the plan; on ``--restart DIR``, the cases recorded there (the same deck and
+        plan required)."""
+        comm, args = run.comm, run.args
+        deck = cli.read_deck(comm, COMPRESS_SCHEMA, args, overrides=study.QUICK_SET if args.quick else [],
                              base=None if args.config else study.STUDY_DECK,
                              check=lambda deck: setattr(self, "plan", make_plan(args, deck)))
+        self.header = plain_json({"deck": deck, "plan": asdict(self.plan)})
+        self.finished = {}
+        if args.restart:
+            self.finished = {study.case_id(r): r for r in study_restart(comm, args.restart, self.header,
+                                                                        "an anisotropy study")}
+        return deck
 
     def build(self, run):
         """Refuse an unusable deck before any case runs: the rank that will run realisation 0 of
@@ -164,11 +172,6 @@ class Anisotropy(StudyDriver):
             problem = comm.bcast(problem, root=root)
             if problem:
                 raise DeckError(problem)
-        self.header = plain_json({"deck": deck, "plan": asdict(plan)})
-        self.finished = {}
-        if args.restart:
-            self.finished = {study.case_id(r): r for r in study_restart(comm, args.restart, self.header,
-                                                                        "an anisotropy study")}
         self.plot = not args.no_plot
         if self.plot and comm.is_root:
             try:

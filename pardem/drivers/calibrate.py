@@ -392,9 +392,20 @@ class Calibrate(StudyDriver):
         return None if run.args.config else run.meta.get("deck")
 
     def read_deck(self, run):
-        return cli.read_deck(run.comm, calib.CALIBRATE_SCHEMA, run.args,
+        """The targets deck; on ``--restart DIR``, the verification runs recorded there (the same
+        deck and options required)."""
+        comm, args = run.comm, run.args
+        deck = cli.read_deck(comm, calib.CALIBRATE_SCHEMA, args,
                              base=self.base_deck(run) if run.meta is not None else None,
-                             check=lambda deck: self.check(run.args, deck))
+                             check=lambda deck: self.check(args, deck))
+        self.header = plain_json({"driver": "calibrate", "deck": deck,
+                                  "options": {"verify": args.verify, "quick": args.quick, "steps": args.steps}})
+        self.finished = {}
+        if args.restart:      # the runs done there, by name
+            self.finished = {r["name"]: r for r in study_restart(comm, args.restart, self.header, "a calibration",
+                                                                 parts=("deck", "options"), driver="calibrate")
+                             if "name" in r}
+        return deck
 
     def check(self, args, deck):
         """DeckError on options the deck's domain does not take, unusable targets, or a
@@ -417,18 +428,10 @@ class Calibrate(StudyDriver):
             verification_raw(self.raw, deck, args.quick)     # refuse a domain too small before writing
 
     def build(self, run):
-        comm, args, deck = run.comm, run.args, run.deck
         if self.compact:
             from pardem.protocols import compact_calibration as cc
-            self.plan = cc.make_plan(deck)
+            self.plan = cc.make_plan(run.deck)
             return self.plan
-        self.header = plain_json({"driver": "calibrate", "deck": deck,
-                                  "options": {"verify": args.verify, "quick": args.quick, "steps": args.steps}})
-        self.finished = {}
-        if args.restart:      # the runs done there, by name
-            self.finished = {r["name"]: r for r in study_restart(comm, args.restart, self.header, "a calibration",
-                                                                 parts=("deck", "options"), driver="calibrate")
-                             if "name" in r}
         return self.cal
 
     def start(self, run):

@@ -95,8 +95,15 @@ class Mixture(StudyDriver):
     summary_name = "mixture.json"
 
     def read_deck(self, run):
-        return cli.read_deck(run.comm, iso.SCHEMA, run.args, overrides=QUICK_SET if run.args.quick else [],
+        """The deck and the plan; on ``--restart DIR``, the cases recorded there (the same deck and
+        plan required)."""
+        comm, args = run.comm, run.args
+        deck = cli.read_deck(comm, iso.SCHEMA, args, overrides=QUICK_SET if args.quick else [],
                              default_config=STUDY_DECK, check=lambda deck: self.plan_of(run, deck))
+        self.header = plain_json({"deck": deck, "plan": self.plan.__dict__})
+        self.finished = ({r["id"]: r for r in study_restart(comm, args.restart, self.header, "a mixture study")
+                          if "id" in r} if args.restart else {})
+        return deck
 
     def plan_of(self, run, deck):
         """The plan and its cases from the options and the deck; DeckError if a case's deck fails
@@ -108,9 +115,6 @@ class Mixture(StudyDriver):
 
     def build(self, run):
         comm, args = run.comm, run.args
-        self.header = plain_json({"deck": run.deck, "plan": self.plan.__dict__})
-        self.finished = ({r["id"]: r for r in study_restart(comm, args.restart, self.header, "a mixture study")
-                          if "id" in r} if args.restart else {})
         self.plot = not args.no_plot and _have_matplotlib(comm)
         return self.plan
 

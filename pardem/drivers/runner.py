@@ -193,7 +193,8 @@ class StudyDriver(ProtocolDriver):
     case after the other on every rank), each with its own outputs and record: no one simulation,
     so no progress reporter, checkpoint or ParaView writer of the runner's; ``execute`` runs the
     cases. ``--restart DIR`` names an earlier study's output folder, whose records the study reads
-    in ``build`` (``cli.study_restart``); ``inspect`` may read its header (the base deck). A stop
+    with its deck (``read_deck``: ``cli.study_restart`` checks the header, so another deck or plan
+    is refused before the output folder); ``inspect`` may read the header first (the base deck). A stop
     signal ends the study with the records written so far (each case's rank stops at its own
     step, so no collective summary follows), from which ``--restart`` continues. The summary's
     common fields go under ``meta`` unless ``common_key`` says otherwise."""
