@@ -25,5 +25,9 @@ class Interrupted(RuntimeError):
         self.signum, self.step = int(signum), int(step)
 
 
+class StepLimit(Exception):
+    """The run reached its ``--steps`` limit (not an error: the driver checkpoints and stops)."""
+
+
 class OutputError(RuntimeError):
     """A result file could not be written (disk full, permission denied, bad path)."""

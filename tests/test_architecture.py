@@ -193,3 +193,42 @@ def test_the_file_check_sees_opens_and_figures(tmp_path):
     f.write_text("import os\ndef g(fig, p):\n    with open(p) as fh:\n        pass\n    fig.savefig(p)\n"
                  "    os.makedirs(p)\n")
     assert sorted(n for _, n in file_calls(f)) == ["fig.savefig", "open", "os.makedirs"]
+
+
+# driver modules whose main runs no protocol (a figure of a finished run's files)
+NOT_RUNS = {"plot"}
+RUNNER_CALLS = {"run_protocol", "protocol_main"}     # protocol_main is run_protocol under cli.run_driver
+
+
+def runs_through_the_runner(path):
+    """None if ``path`` has no top-level ``main``; else whether ``main`` calls ``run_protocol`` (or
+    ``protocol_main``)."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    mains = [n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "main"]
+    if not mains:
+        return None
+    return any(isinstance(n, ast.Call) and (_dotted(n.func) or "").rpartition(".")[2] in RUNNER_CALLS
+               for n in ast.walk(mains[0]))
+
+
+def test_every_driver_runs_through_the_runner():
+    drivers = sorted((ROOT / "drivers").glob("*.py"))
+    with_main = [f for f in drivers if runs_through_the_runner(f) is not None and f.stem not in NOT_RUNS]
+    assert len(with_main) >= 8, [f.stem for f in with_main]
+    bad = [f.stem for f in with_main if not runs_through_the_runner(f)]
+    assert not bad, "drivers whose main bypasses drivers.runner.run_protocol: " + ", ".join(bad)
+
+
+def test_the_runner_imports_no_protocol():
+    bad = [n for n in imports(ROOT / "drivers" / "runner.py") if _hits(n, "pardem.protocols")]
+    assert not bad, "pardem/drivers/runner.py imports " + ", ".join(bad)
+
+
+def test_the_runner_check_sees_a_bypass(tmp_path):
+    f = tmp_path / "d.py"
+    f.write_text("def main(argv=None):\n    return run_driver(comm, run, args)\n")
+    assert runs_through_the_runner(f) is False
+    f.write_text("def main(argv=None):\n    return runner.protocol_main(D, parser, argv)\n")
+    assert runs_through_the_runner(f) is True
+    f.write_text("def other():\n    pass\n")
+    assert runs_through_the_runner(f) is None

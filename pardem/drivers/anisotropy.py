@@ -48,18 +48,17 @@ import numpy as np
 
 import pardem
 from pardem.protocols import anisotropy_study as study
-from pardem.drivers.cli import (EXIT_OK, add_study_options, driver_parser, fail_usage, option_names,
-                                option_number, option_numbers, output_dir, plain_json, run_driver, study_restart)
+from pardem.drivers import cli
+from pardem.drivers.cli import (add_study_options, driver_parser, option_names, option_number, option_numbers,
+                                plain_json, study_restart)
+from pardem.drivers.runner import StudyDriver, protocol_main
 from pardem.protocols.compression import build_case
 from pardem.config import DeckError
-from pardem.io.deck_file import load_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.io.paraview import ParaViewWriter
 from pardem.io.records import RecordLog, start_study_folder
 from pardem.io.series import SeriesCSV
 from pardem.io.series_h5 import SeriesH5
-from pardem.io.summary import write_json
-from pardem.parallel.communicator import Communicator
 
 
 def parser(comm=None):
@@ -118,8 +117,7 @@ def make_plan(args, deck):
 
 
 def main(argv=None):
-    comm = Communicator()
-    return run_driver(comm, run, parser(comm).parse_args(argv))
+    return protocol_main(Anisotropy, parser, argv)
 
 
 def _finite_or_none(obj):
@@ -133,72 +131,92 @@ def _finite_or_none(obj):
     return obj
 
 
-def run(comm, args):
-    t_start = time.perf_counter()
-    case_comm = comm.split_self()
-    try:
-        overrides = (study.QUICK_SET if args.quick else []) + args.overrides
-        deck = load_deck(COMPRESS_SCHEMA, args.config, overrides,
-                         base=None if args.config else study.STUDY_DECK)
-        plan = make_plan(args, deck)
-    except DeckError as err:
-        fail_usage(comm, str(err))
-    # refuse an unusable deck before any case runs: the rank that will run realisation 0 of each kind
-    # builds its domains (loaded along x, y, z) and keeps the packings for it
-    packings = {}
-    for kind in plan.kinds:
-        root, problem = study.owner(plan, comm.size, kind, 0), None
-        if comm.rank == root:
+class Anisotropy(StudyDriver):
+    """The anisotropy study: a task farm of compressions over (kind, law, ratio, axis or tilt,
+    realisation); summary ``anisotropy.json``."""
+    name = "anisotropy"
+    schema = COMPRESS_SCHEMA
+    summary_name = "anisotropy.json"
+
+    def read_deck(self, run):
+        """The deck and the plan; on ``--restart DIR``, the cases recorded there (the same deck and
+        plan required)."""
+        comm, args = run.comm, run.args
+        deck = cli.read_deck(comm, COMPRESS_SCHEMA, args, overrides=study.QUICK_SET if args.quick else [],
+                             base=None if args.config else study.STUDY_DECK,
+                             check=lambda deck: setattr(self, "plan", make_plan(args, deck)))
+        self.header = plain_json({"deck": deck, "plan": asdict(self.plan)})
+        self.finished = {}
+        if args.restart:
+            self.finished = {study.case_id(r): r for r in study_restart(comm, args.restart, self.header,
+                                                                        "an anisotropy study")}
+        return deck
+
+    def build(self, run):
+        """Refuse an unusable deck before any case runs: the rank that will run realisation 0 of
+        each kind builds its domains (loaded along x, y, z) and keeps the packings for it."""
+        comm, deck, plan, args = run.comm, run.deck, self.plan, run.args
+        self.case_comm = comm.split_self()
+        self.packings = {}
+        for kind in plan.kinds:
+            root, problem = study.owner(plan, comm.size, kind, 0), None
+            if comm.rank == root:
+                try:
+                    for axis in study.AXES:
+                        first = study.Case(kind, 0, plan.laws[0], plan.ratios[0], axis)
+                        self.packings[kind, 0, axis] = study.realisation_packing(deck, plan, first)
+                        build_case(self.case_comm, study.case_deck(deck, plan, first),
+                                   packing=self.packings[kind, 0, axis])
+                except DeckError as err:
+                    problem = str(err)
+            problem = comm.bcast(problem, root=root)
+            if problem:
+                raise DeckError(problem)
+        self.plot = not args.no_plot
+        if self.plot and comm.is_root:
             try:
-                for axis in study.AXES:
-                    first = study.Case(kind, 0, plan.laws[0], plan.ratios[0], axis)
-                    packings[kind, 0, axis] = study.realisation_packing(deck, plan, first)
-                    build_case(case_comm, study.case_deck(deck, plan, first), packing=packings[kind, 0, axis])
-            except DeckError as err:
-                problem = str(err)
-        problem = comm.bcast(problem, root=root)
-        if problem:
-            fail_usage(comm, problem)
-    header = plain_json({"deck": deck, "plan": asdict(plan)})
-    finished = {}
-    if args.restart:
-        finished = {study.case_id(r): r for r in study_restart(comm, args.restart, header, "an anisotropy study")}
-    plot = not args.no_plot
-    if plot and comm.is_root:
-        try:
-            import matplotlib  # noqa: F401
-        except ImportError:
-            plot = False
-            sys.stderr.write("pardem: note: matplotlib is not installed, so no anisotropy.png "
-                             "(pip install 'pardem[plot]')\n")
-    # checked, created and locked; a folder holding results is refused (unless --overwrite), and a
-    # restart writes into a new folder (default DIR-restart-<time>) that gets every record
-    out = output_dir(comm, args, "anisotropy")
-    n_cases = sum(len(g) for g in study.plan_cases(plan))
-    if comm.is_root:
-        start_study_folder(out, header, finished)
-    comm.barrier()
-    log = RecordLog(out, comm.rank)
-    if comm.is_root:
-        print(f"pardem {pardem.__version__}: anisotropy study, {n_cases} compressions on {comm.size} "
-              f"rank(s): kinds {','.join(plan.kinds)}, laws {','.join(plan.laws)}, E_L/E_R "
-              f"{','.join(f'{q:g}' for q in plan.ratios)} (E_R = {plan.E_R / 1e6:g} MPa, E_T = "
-              f"{plan.E_T / 1e6:g} MPa), off-axis xi {','.join(f'{x:g}' for x in plan.xis()) or 'none'} "
-              f"at E_L/E_R = {plan.offaxis_ratio:g}; output {out}", flush=True)
-    progress = None if args.quiet else _progress(time.perf_counter())
-    if finished and comm.is_root:
-        print(f"restart: {len(finished)} of {n_cases} cases recorded in {args.restart} are not run again",
-              flush=True)
-    records = study.run_study(comm, case_comm, deck, plan, progress, packings, finished=finished,
-                              on_record=log.append, outputs=_case_outputs(out, case_comm, deck["output"]["vtk_every"]))
-    if comm.is_root:
+                import matplotlib  # noqa: F401
+            except ImportError:
+                self.plot = False
+                sys.stderr.write("pardem: note: matplotlib is not installed, so no anisotropy.png "
+                                 "(pip install 'pardem[plot]')\n")
+        return plan
+
+    def start(self, run):
+        comm, plan, out, finished = run.comm, self.plan, run.out, self.finished
+        self.n_cases = n_cases = sum(len(g) for g in study.plan_cases(plan))
+        if comm.is_root:
+            start_study_folder(out, self.header, finished)
+        comm.barrier()
+        if comm.is_root:
+            print(f"pardem {pardem.__version__}: anisotropy study, {n_cases} compressions on {comm.size} "
+                  f"rank(s): kinds {','.join(plan.kinds)}, laws {','.join(plan.laws)}, E_L/E_R "
+                  f"{','.join(f'{q:g}' for q in plan.ratios)} (E_R = {plan.E_R / 1e6:g} MPa, E_T = "
+                  f"{plan.E_T / 1e6:g} MPa), off-axis xi {','.join(f'{x:g}' for x in plan.xis()) or 'none'} "
+                  f"at E_L/E_R = {plan.offaxis_ratio:g}; output {out}", flush=True)
+
+    def execute(self, run):
+        comm, args, out = run.comm, run.args, run.out
+        log = RecordLog(out, comm.rank)
+        progress = None if args.quiet else _progress(time.perf_counter())
+        if self.finished and comm.is_root:
+            print(f"restart: {len(self.finished)} of {self.n_cases} cases recorded in {args.restart} are not run "
+                  f"again", flush=True)
+        self.records = study.run_study(comm, self.case_comm, run.deck, self.plan, progress, self.packings,
+                                       finished=self.finished, on_record=log.append,
+                                       outputs=_case_outputs(out, self.case_comm, run.deck["output"]["vtk_every"]))
+
+    def summary(self, run):
+        if not run.comm.is_root:
+            return {}
+        records, plan, deck = self.records, self.plan, run.deck
         data = study.summarise(records, plan, deck)
         failed = [r for r in records if r["status"] != "ok"]
         data["meta"] = {
-            "pardem_version": pardem.__version__, "driver": "anisotropy", "n_ranks": comm.size,
-            "wall_seconds": time.perf_counter() - t_start, "plan": asdict(plan), "xi_deg": plan.xis(),
+            "pardem_version": pardem.__version__, "driver": "anisotropy", "n_ranks": run.comm.size,
+            "wall_seconds": time.perf_counter() - run.t_start, "plan": asdict(plan), "xi_deg": plan.xis(),
             "n_cases": len(records), "n_failed_cases": len(failed),
-            "restarted_from": args.restart, "cases_reused": len(finished),
+            "restarted_from": run.args.restart, "cases_reused": len(self.finished),
             "ordered": "the ordered lattice is deterministic: each of its cases ran once, so its std is 0",
             "statistics": "mean and sample standard deviation (ddof = 1) over the realisations whose L, R "
                           "and T compressions all succeeded; ratios are taken per realisation",
@@ -213,10 +231,15 @@ def run(comm, args):
                       "the slower retries), unstable, bad_input (e.g. a packing the builder refused)",
             "deck": deck, "cases": records,
         }
-        write_json(os.path.join(out, "anisotropy.json"), _finite_or_none(data))
+        self.data = data
+        return _finite_or_none(data)
+
+    def finish(self, run, summary):
+        records, plan, out, data = self.records, self.plan, run.out, self.data
+        failed = [r for r in records if r["status"] != "ok"]
         print(study.format_table(data, plan))
         written = ["anisotropy.json"]
-        if plot:
+        if self.plot:
             from pardem.io.anisotropy_plot import plot_study
             plot_study(data, plan, os.path.join(out, "anisotropy.png"))
             written.append("anisotropy.png")
@@ -226,7 +249,7 @@ def run(comm, args):
                   f"({', '.join(kinds)}); they are left out of the statistics", file=sys.stderr)
         print(f"wrote {' and '.join(os.path.join(out, w) for w in written)} in "
               f"{data['meta']['wall_seconds']:.1f} s", flush=True)
-    return EXIT_OK
+        return cli.EXIT_OK
 
 
 def _case_outputs(out, case_comm, vtk_every):

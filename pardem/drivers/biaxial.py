@@ -48,7 +48,8 @@ import numpy as np
 import pardem
 from pardem.config import DeckError
 from pardem.drivers import cli
-from pardem.drivers.runner import GranularDriver, protocol_main
+from pardem.drivers.granular import GranularDriver
+from pardem.drivers.runner import protocol_main
 from pardem.engine import granular
 from pardem.io import biaxial_plot
 from pardem.physics import shear_band

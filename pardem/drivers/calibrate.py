@@ -64,19 +64,19 @@ import time
 
 import pardem
 from pardem.protocols import calibration as calib
-from pardem.drivers.cli import (MAX_STEPS, EXIT_NOT_MEASURED, EXIT_OK, EXIT_UNSTABLE, driver_parser, fail_usage, output_dir,
-                                plain_json, run_driver, study_restart)
+from pardem.drivers import cli
+from pardem.drivers.cli import (MAX_STEPS, EXIT_NOT_MEASURED, EXIT_OK, EXIT_UNSTABLE, driver_parser, fail_usage,
+                                plain_json, study_restart)
+from pardem.drivers.runner import StudyDriver, protocol_main
 from pardem.protocols.compression import SeriesSampler, build_case, measure, with_plate_speed
 from pardem.protocols import shear as shear_protocol
 from pardem.config import DeckError, check_deck
-from pardem.io.deck_file import load_deck
 from pardem.protocols.compression_deck import COMPRESS_SCHEMA
 from pardem.io.paraview import ParaViewWriter
 from pardem.io.records import RecordLog, read_study_header, start_study_folder
 from pardem.io.series import SeriesCSV, dict_row
 from pardem.io.series_h5 import SeriesH5
 from pardem.io.summary import write_json, write_text
-from pardem.parallel.communicator import Communicator
 from pardem.errors import DecompositionError
 from pardem.errors import InstabilityError
 from pardem.triggers import as_trigger
@@ -107,8 +107,7 @@ def parser(comm=None):
 
 
 def main(argv=None):
-    comm = Communicator()
-    return run_driver(comm, run, parser(comm).parse_args(argv))
+    return protocol_main(Calibrate, parser, argv)
 
 
 def strengths_supported():
@@ -375,76 +374,119 @@ def format_table(report):
     return "\n".join(lines)
 
 
-def run(comm, args):
-    t_start = time.perf_counter()
-    base = None
-    if args.restart and not args.config:     # the deck of the calibration being continued
-        old = comm.bcast(read_study_header(args.restart) if comm.is_root else None)
-        base = (old or {}).get("deck")
-    try:
-        deck = load_deck(calib.CALIBRATE_SCHEMA, args.config, args.overrides, base=base)
-        if deck["domain"]["kind"] == "compact":
+class Calibrate(StudyDriver):
+    """The calibration: the closed form of an ordered lattice (and its verification runs, one
+    after the other on every rank), or a compact domain's calibration by measurement (a task farm
+    of realisations per iteration); summary ``calibration.json``."""
+    name = "calibrate"
+    schema = calib.CALIBRATE_SCHEMA
+    summary_name = "calibration.json"
+    common_key = None
+
+    def inspect(self, run):
+        """The header of the calibration being continued (its deck is the base), or {}."""
+        comm = run.comm
+        return comm.bcast(read_study_header(run.args.restart) if comm.is_root else None) or {}
+
+    def base_deck(self, run):
+        return None if run.args.config else run.meta.get("deck")
+
+    def read_deck(self, run):
+        """The targets deck; on ``--restart DIR``, the verification runs recorded there (the same
+        deck and options required)."""
+        comm, args = run.comm, run.args
+        deck = cli.read_deck(comm, calib.CALIBRATE_SCHEMA, args,
+                             base=self.base_deck(run) if run.meta is not None else None,
+                             check=lambda deck: self.check(args, deck))
+        self.header = plain_json({"driver": "calibrate", "deck": deck,
+                                  "options": {"verify": args.verify, "quick": args.quick, "steps": args.steps}})
+        self.finished = {}
+        if args.restart:      # the runs done there, by name
+            self.finished = {r["name"]: r for r in study_restart(comm, args.restart, self.header, "a calibration",
+                                                                 parts=("deck", "options"), driver="calibrate")
+                             if "name" in r}
+        return deck
+
+    def check(self, args, deck):
+        """DeckError on options the deck's domain does not take, unusable targets, or a
+        verification domain too small; keeps the calibration of an ordered domain."""
+        self.compact = deck["domain"]["kind"] == "compact"
+        if self.compact:
             used = [o for o, v in (("--verify", args.verify), ("--quick", args.quick), ("--steps", args.steps is not None),
                                    ("--restart", args.restart)) if v]
             if used:
                 raise DeckError(f"{used[0]} applies to domain.kind = \"ordered\": a compact calibration "
                                 f"measures its domain at every iteration (section [compact])")
             calib.calibrate(calib.Targets.from_deck(deck), deck["bonds"]["relations"])   # the start exists
-    except DeckError as err:
-        fail_usage(comm, str(err))
-    if deck["domain"]["kind"] == "compact":
-        return run_compact(comm, args, deck, t_start)
-    try:
+            return
         if args.steps is not None and not 1 <= args.steps <= MAX_STEPS:
             raise DeckError(f"--steps {args.steps}: expected an integer from 1 to {MAX_STEPS:.0e}")
         if (args.steps is not None or args.restart) and not args.verify:
             raise DeckError("--steps and --restart apply to --verify: add --verify")
-        targets, cal, raw, _checked = calibrated_deck(deck)
+        self.targets, self.cal, self.raw, _checked = calibrated_deck(deck)
         if args.verify:
-            verification_raw(raw, deck, args.quick)     # refuse a domain too small before writing
-    except DeckError as err:
-        fail_usage(comm, str(err))
-    header = plain_json({"driver": "calibrate", "deck": deck,
-                         "options": {"verify": args.verify, "quick": args.quick, "steps": args.steps}})
-    finished = {}
-    if args.restart:      # the runs done there, by name
-        finished = {r["name"]: r for r in study_restart(comm, args.restart, header, "a calibration",
-                                                        parts=("deck", "options"), driver="calibrate") if "name" in r}
-    # checked, created and locked; a folder holding results is refused (unless --overwrite), and a
-    # restart writes into a new folder (default DIR-restart-<time>) that gets every record
-    out = output_dir(comm, args, "calibrate")
-    say = (lambda text: print(text, flush=True)) if comm.is_root and not args.quiet else (lambda text: None)
-    report = {"pardem_version": pardem.__version__, "driver": "calibrate", "n_ranks": comm.size,
-              "targets": {**targets.__dict__, "young_R": targets.young()[1]},
-              "relations": deck["bonds"]["relations"], "bonds": cal.as_dict(),
-              "predicted": calib.predictions(cal), "calibrations": both_calibrations(targets),
-              "poisson_ratio": calib.LATTICE_POISSON, "poisson_note": calib.POISSON_NOTE,
-              "deck": os.path.join(out, DECK_NAME), "strengths_in_deck": strengths_supported(),
-              "targets_deck": deck, "restarted_from": args.restart, "runs_reused": sorted(finished)}
-    if comm.is_root:
+            verification_raw(self.raw, deck, args.quick)     # refuse a domain too small before writing
+
+    def build(self, run):
+        if self.compact:
+            from pardem.protocols import compact_calibration as cc
+            self.plan = cc.make_plan(run.deck)
+            return self.plan
+        return self.cal
+
+    def start(self, run):
+        comm, args, out = run.comm, run.args, run.out
+        self.say = ((lambda text: print(text, flush=True)) if comm.is_root and not args.quiet
+                    else (lambda text: None))
+        if self.compact:
+            return self.start_compact(run)
+        deck, targets, cal = run.deck, self.targets, self.cal
+        self.report = {
+            "pardem_version": pardem.__version__, "driver": "calibrate", "n_ranks": comm.size,
+            "targets": {**targets.__dict__, "young_R": targets.young()[1]},
+            "relations": deck["bonds"]["relations"], "bonds": cal.as_dict(),
+            "predicted": calib.predictions(cal), "calibrations": both_calibrations(targets),
+            "poisson_ratio": calib.LATTICE_POISSON, "poisson_note": calib.POISSON_NOTE,
+            "deck": os.path.join(out, DECK_NAME), "strengths_in_deck": strengths_supported(),
+            "targets_deck": deck, "restarted_from": args.restart, "runs_reused": sorted(self.finished)}
+        if comm.is_root:
+            if args.verify:
+                start_study_folder(out, self.header, self.finished)
+            write_text(os.path.join(out, DECK_NAME), deck_text(self.raw, _header(targets, cal, deck, args.config)))
+            b = cal
+            print(f"pardem {pardem.__version__}: calibration (docs/physics.md section 6, relations "
+                  f"{deck['bonds']['relations']}): E^mu (L, R, T) = "
+                  f"{', '.join(f'{x:.5g}' for x in b.young)} Pa, r (L, R, T) = "
+                  f"{', '.join(f'{x:.4g}' for x in b.radius_ratio)}, element density {b.element_density:.5g} kg/m^3; "
+                  f"lattice Poisson ratio {calib.LATTICE_POISSON:g}; wrote {os.path.join(out, DECK_NAME)}", flush=True)
+            if not strengths_supported():
+                print("warning: the compress deck of this pardem has no rupture/densification keys: the "
+                      "thresholds are in calibration.json only", file=sys.stderr, flush=True)
+        comm.barrier()
+
+    def execute(self, run):
+        comm, args, out = run.comm, run.args, run.out
+        if self.compact:
+            return self.execute_compact(run)
         if args.verify:
-            start_study_folder(out, header, finished)
-        write_text(os.path.join(out, DECK_NAME), deck_text(raw, _header(targets, cal, deck, args.config)))
-        b = cal
-        print(f"pardem {pardem.__version__}: calibration (docs/physics.md section 6, relations "
-              f"{deck['bonds']['relations']}): E^mu (L, R, T) = "
-              f"{', '.join(f'{x:.5g}' for x in b.young)} Pa, r (L, R, T) = "
-              f"{', '.join(f'{x:.4g}' for x in b.radius_ratio)}, element density {b.element_density:.5g} kg/m^3; "
-              f"lattice Poisson ratio {calib.LATTICE_POISSON:g}; wrote {os.path.join(out, DECK_NAME)}", flush=True)
-        if not strengths_supported():
-            print("warning: the compress deck of this pardem has no rupture/densification keys: the "
-                  "thresholds are in calibration.json only", file=sys.stderr, flush=True)
-    comm.barrier()
-    if args.verify:
-        log = RecordLog(out, 0) if comm.is_root else None
-        with _measurement_failures(comm, "verification domain", "a verification run"):
-            report["verification"] = verify(comm, raw, deck, targets, cal, args.quick, say, out, finished,
-                                            log.append if log else None, args.steps)
-    report["wall_seconds"] = time.perf_counter() - t_start
-    code = EXIT_OK
-    if comm.is_root:
-        write_json(os.path.join(out, "calibration.json"), report)   # NaN -> null
+            log = RecordLog(out, 0) if comm.is_root else None
+            with _measurement_failures(comm, "verification domain", "a verification run"):
+                self.report["verification"] = verify(comm, self.raw, run.deck, self.targets, self.cal, args.quick,
+                                                     self.say, out, self.finished, log.append if log else None,
+                                                     args.steps)
+
+    def summary(self, run):
+        if self.compact:
+            return self.summary_compact(run)
+        self.report["wall_seconds"] = time.perf_counter() - run.t_start
+        return self.report
+
+    def finish(self, run, summary):
+        if self.compact:
+            return self.finish_compact(run, summary)
+        args, out, report, deck = run.args, run.out, summary, run.deck
         written = ["calibration.json", DECK_NAME]
+        code = EXIT_OK
         if args.verify:
             v = report["verification"]
             print(format_table(report), flush=True)
@@ -466,62 +508,50 @@ def run(comm, args):
                 code = EXIT_OK if v["verification_ok"] else EXIT_VERIFY_FAILED
         print(f"wrote {', '.join(os.path.join(out, w) for w in written)} in {report['wall_seconds']:.1f} s",
               flush=True)
-    return comm.bcast(code)
+        return code
 
+    # the compact-domain calibration by measurement (pardem.protocols.compact_calibration): writes
+    # DIR/calibration_history.json after every iteration, then DIR/calibration.json,
+    # DIR/compress_calibrated.toml (the last measured bonds) and DIR/calibration_history.png; exit
+    # code 6 when a target is still missed after compact.max_iterations measurements
 
-@contextlib.contextmanager
-def _measurement_failures(comm, context, run_name):
-    """Around the measurement runs (collective): a domain they cannot build ends with one line
-    ``<context>: <reason>`` and exit 2, an unstable run with one line naming ``run_name`` and exit 3."""
-    try:
-        yield
-    except (DeckError, DecompositionError) as err:
-        fail_usage(comm, f"{context}: {err}")
-    except InstabilityError as err:
+    def start_compact(self, run):
+        comm, out, plan = run.comm, run.out, self.plan
+        self.history = []
+        self.hist_path = os.path.join(out, HISTORY_NAME)
         if comm.is_root:
-            sys.stderr.write(f"pardem: error: {run_name} became unstable {err}\n")
-        raise SystemExit(EXIT_UNSTABLE)
+            print(f"pardem {pardem.__version__}: compact-domain calibration by measurement: targets "
+                  + ", ".join(f"{n} = {v:.5g} Pa" for n, v in zip(plan.targets, plan.values))
+                  + f"; {len(plan.seeds)} realisation(s) (seeds {plan.seeds[0]}..{plan.seeds[-1]}) on {comm.size} "
+                    f"rank(s); output {out}", flush=True)
 
+    def execute_compact(self, run):
+        from pardem.protocols import compact_calibration as cc
+        comm, plan = run.comm, self.plan
 
-HISTORY_NAME = "calibration_history.json"
-HISTORY_PLOT = "calibration_history.png"
+        def on_iteration(entry):
+            self.history.append(entry)
+            if comm.is_root:
+                write_json(self.hist_path, {"targets": dict(zip(plan.targets, plan.values)), "history": self.history})
+        with _measurement_failures(comm, "compact calibration", "a calibration run"):
+            self.result = cc.calibrate_compact(comm, run.deck, self.say, on_iteration)
 
+    def summary_compact(self, run):
+        result, deck = self.result, run.deck
+        return {"pardem_version": pardem.__version__, "driver": "calibrate", "n_ranks": run.comm.size,
+                "kind": "compact", "targets": result["targets"], "relations_of_start": deck["bonds"]["relations"],
+                "compact": result, "deck": os.path.join(run.out, DECK_NAME), "targets_deck": deck,
+                "wall_seconds": time.perf_counter() - run.t_start,
+                "note": "bonds: the last measured set (the calibrated one when converged); measured: the mean over "
+                        "the realisations of the quasi-static slope moduli of each test; the sensitivity matrix "
+                        "rows are d ln M / d ln (E_L^mu, E_R^mu, E_T^mu, radii) from the bonds' energy shares "
+                        "(pardem.protocols.compact_calibration)"}
 
-def run_compact(comm, args, deck, t_start):
-    """The compact-domain calibration by measurement (``pardem.protocols.compact_calibration``):
-    writes ``DIR/calibration_history.json`` after every iteration, then ``DIR/calibration.json``,
-    ``DIR/compress_calibrated.toml`` (the last measured bonds) and ``DIR/calibration_history.png``;
-    exit code 6 when a target is still missed after ``compact.max_iterations`` measurements."""
-    from pardem.protocols import compact_calibration as cc
-    out = output_dir(comm, args, "calibrate")
-    say = (lambda text: print(text, flush=True)) if comm.is_root and not args.quiet else (lambda text: None)
-    plan = cc.make_plan(deck)
-    history = []
-    hist_path = os.path.join(out, HISTORY_NAME)
-    if comm.is_root:
-        print(f"pardem {pardem.__version__}: compact-domain calibration by measurement: targets "
-              + ", ".join(f"{n} = {v:.5g} Pa" for n, v in zip(plan.targets, plan.values))
-              + f"; {len(plan.seeds)} realisation(s) (seeds {plan.seeds[0]}..{plan.seeds[-1]}) on {comm.size} "
-                f"rank(s); output {out}", flush=True)
-
-    def on_iteration(entry):
-        history.append(entry)
-        if comm.is_root:
-            write_json(hist_path, {"targets": dict(zip(plan.targets, plan.values)), "history": history})
-    with _measurement_failures(comm, "compact calibration", "a calibration run"):
-        result = cc.calibrate_compact(comm, deck, say, on_iteration)
-    b = result["bonds"]
-    raw = cc.compress_raw(deck, b["young"], b["radius_ratio"])
-    report = {"pardem_version": pardem.__version__, "driver": "calibrate", "n_ranks": comm.size,
-              "kind": "compact", "targets": result["targets"], "relations_of_start": deck["bonds"]["relations"],
-              "compact": result, "deck": os.path.join(out, DECK_NAME), "targets_deck": deck,
-              "wall_seconds": time.perf_counter() - t_start,
-              "note": "bonds: the last measured set (the calibrated one when converged); measured: the mean over "
-                      "the realisations of the quasi-static slope moduli of each test; the sensitivity matrix "
-                      "rows are d ln M / d ln (E_L^mu, E_R^mu, E_T^mu, radii) from the bonds' energy shares "
-                      "(pardem.protocols.compact_calibration)"}
-    code = EXIT_OK if result["converged"] else EXIT_VERIFY_FAILED
-    if comm.is_root:
+    def finish_compact(self, run, report):
+        from pardem.protocols import compact_calibration as cc
+        args, out, result, hist_path = run.args, run.out, self.result, self.hist_path
+        b = result["bonds"]
+        raw = cc.compress_raw(run.deck, b["young"], b["radius_ratio"])
         write_json(hist_path, {"targets": result["targets"], "history": result["history"]})
         header = [f"Compress deck of a compact domain calibrated by measurement (`python -m pardem.drivers.calibrate`, "
                   f"pardem {pardem.__version__})",
@@ -532,7 +562,6 @@ def run_compact(comm, args, deck, t_start):
                   f"{'converged' if result['converged'] else 'NOT converged'} after {result['iterations']} "
                   f"measurement(s) (tolerance {100 * result['tolerance']:g} %); see {CALIBRATION_JSON}."]
         write_text(os.path.join(out, DECK_NAME), deck_text(raw, header))
-        write_json(os.path.join(out, CALIBRATION_JSON), report)
         written = [CALIBRATION_JSON, HISTORY_NAME, DECK_NAME]
         try:
             from pardem.io.calibration_plot import plot_compact_history
@@ -554,7 +583,25 @@ def run_compact(comm, args, deck, t_start):
                              f"bond network)\n")
         print(f"wrote {', '.join(os.path.join(out, w) for w in written)} in {report['wall_seconds']:.1f} s",
               flush=True)
-    return comm.bcast(code)
+        return EXIT_OK if result["converged"] else EXIT_VERIFY_FAILED
+
+
+@contextlib.contextmanager
+def _measurement_failures(comm, context, run_name):
+    """Around the measurement runs (collective): a domain they cannot build ends with one line
+    ``<context>: <reason>`` and exit 2, an unstable run with one line naming ``run_name`` and exit 3."""
+    try:
+        yield
+    except (DeckError, DecompositionError) as err:
+        fail_usage(comm, f"{context}: {err}")
+    except InstabilityError as err:
+        if comm.is_root:
+            sys.stderr.write(f"pardem: error: {run_name} became unstable {err}\n")
+        raise SystemExit(EXIT_UNSTABLE)
+
+
+HISTORY_NAME = "calibration_history.json"
+HISTORY_PLOT = "calibration_history.png"
 
 
 CALIBRATION_JSON = "calibration.json"

@@ -179,8 +179,12 @@ def output_failure(err):
 
 def interrupted_line(err):
     """The one line that ends an interrupted run. The driver's stop protocol may set
-    ``err.checkpoint`` (the newest checkpoint) and ``err.final`` (it was written at the stop)."""
+    ``err.checkpoint`` (the newest checkpoint) and ``err.final`` (it was written at the stop), or
+    ``err.records`` (a study's output folder, whose records a restart continues from)."""
     head = f"pardem: stopped by {_signal_name(err.signum)} at step {err.step}"
+    records = getattr(err, "records", None)
+    if records:
+        return f"{head}; the finished cases are recorded in {records}; restart with --restart {records}"
     ck = getattr(err, "checkpoint", None)
     if ck and getattr(err, "final", False):
         return f"{head}; final checkpoint {ck}; restart with --restart {ck}"
@@ -278,17 +282,23 @@ def agree(comm, problem):
         fail_usage(comm, message if same else f"rank {rank}: {message}")
 
 
-def read_deck(comm, schema, args, base=None):
-    """Collective: the checked deck of ``--config`` (or ``base``) and ``--set``; exits 2 on every
-    rank if any rank finds bad input. Its ``run.watchdog_seconds``, if the schema has it, sets the
-    watchdog's limit."""
+def read_deck(comm, schema, args, base=None, overrides=None, check=None, default_config=None):
+    """Collective: the checked deck of ``--config`` (or ``default_config``, a deck file, or
+    ``base``) and ``--set`` (after
+    ``overrides``, e.g. a study's ``--quick`` settings); exits 2 on every rank if any rank finds bad
+    input, also a DeckError of ``check(deck)`` (a driver's checks of the deck with its options;
+    ``--steps`` is then the driver's to check). Its ``run.watchdog_seconds``, if the schema has it,
+    sets the watchdog's limit."""
     deck, problem = None, None
     deck_checks.set_ranks_per_node(layout.ranks_on_node(comm))   # the memory check is per node
     try:
         steps = getattr(args, "steps", None)
-        if steps is not None and not 1 <= steps <= MAX_STEPS:
+        if check is None and steps is not None and not 1 <= steps <= MAX_STEPS:
             raise DeckError(f"--steps {steps}: expected an integer from 1 to {MAX_STEPS:.0e}")
-        deck = load_deck(schema, args.config, args.overrides, base=base)
+        deck = load_deck(schema, args.config or default_config, list(overrides or []) + list(args.overrides),
+                         base=base)
+        if check is not None:
+            check(deck)
     except DeckError as err:
         problem = str(err)
     agree(comm, problem)

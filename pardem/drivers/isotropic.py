@@ -45,7 +45,8 @@ import sys
 import pardem
 from pardem.config import DeckError
 from pardem.drivers import cli
-from pardem.drivers.runner import GranularDriver, protocol_main
+from pardem.drivers.granular import GranularDriver
+from pardem.drivers.runner import protocol_main
 from pardem.io import isotropic_plot
 from pardem.protocols import isotropic as iso
 

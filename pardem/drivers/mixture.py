@@ -30,14 +30,13 @@ import sys
 import time
 
 import pardem
-from pardem.config import DeckError, check_deck
-from pardem.io.deck_file import load_deck
-from pardem.drivers.cli import (EXIT_OK, add_study_options, agree, driver_parser, option_number,
-                                option_numbers, output_dir, plain_json, run_driver, study_restart)
+from pardem.config import check_deck
+from pardem.drivers import cli
+from pardem.drivers.cli import (add_study_options, driver_parser, option_number, option_numbers, plain_json,
+                                study_restart)
+from pardem.drivers.runner import StudyDriver, protocol_main
 from pardem.io.records import RecordLog, start_study_folder
-from pardem.io.summary import write_json
 from pardem.parallel import task_farm
-from pardem.parallel.communicator import Communicator
 from pardem.protocols import isotropic as iso
 from pardem.protocols import mixture_study as study
 
@@ -88,62 +87,90 @@ def make_plan(args, deck):
                       n=int(deck["sample"]["n"]), dimension=iso.dimension(deck), seed=int(deck["sample"]["seed"]))
 
 
-def run(comm, args):
-    t_start = time.perf_counter()
-    problem = None
-    try:
-        overrides = (QUICK_SET if args.quick else []) + args.overrides
-        deck = load_deck(iso.SCHEMA, args.config or STUDY_DECK, overrides)
-        plan = make_plan(args, deck)
-        cases = plan.cases()
-        for case in cases:          # every case's deck passes the isotropic checks (sizes, memory)
-            check_deck(iso.SCHEMA, study.case_deck(deck, plan, case))
-    except DeckError as err:
-        problem = str(err)
-    agree(comm, problem)
-    header = plain_json({"deck": deck, "plan": plan.__dict__})
-    finished = ({r["id"]: r for r in study_restart(comm, args.restart, header, "a mixture study") if "id" in r}
-                if args.restart else {})
-    plot = not args.no_plot and _have_matplotlib(comm)
-    out = output_dir(comm, args, "mixture")
-    if comm.is_root:
-        start_study_folder(out, header, finished)
-        print(f"pardem {pardem.__version__}: mixture study, {len(cases)} packings of {plan.n} grains "
-              f"({plan.dimension}D) on {comm.size} rank(s) at p0 = {plan.pressure:g} Pa: R_l/R_s "
-              f"{','.join(f'{r:g}' for r in plan.ratios)}, {plan.basis} concentration of small grains "
-              f"{','.join(f'{c:g}' for c in plan.concentrations)}, {plan.realisations} realisation(s); "
-              f"output {out}", flush=True)
-        if finished:
-            print(f"restart: {len(finished)} of {len(cases)} cases recorded in {args.restart} are not run again",
-                  flush=True)
-    comm.barrier()
-    log = RecordLog(out, comm.rank)
-    case_comm = comm.split_self()
-    done = [0]
+class Mixture(StudyDriver):
+    """The mixture study: a task farm of isotropic preparations over (ratio, concentration,
+    realisation); summary ``mixture.json``."""
+    name = "mixture"
+    schema = iso.SCHEMA
+    summary_name = "mixture.json"
 
-    def run_one(case):
-        rec = study.run_case(case_comm, deck, plan, case)
-        done[0] += 1
-        if not args.quiet and comm.is_root:
-            print(f"[rank 0, case {done[0]}] {rec['id']}: {rec['status']}, Z = {rec['Z']:.3f}, "
-                  f"phi = {rec['solid_fraction']:.4f}, {rec['order_name']} = {rec['order']:.3f} "
-                  f"({rec['seconds']:.1f} s, {time.perf_counter() - t_start:.0f} s elapsed)", flush=True)
-        return rec
+    def read_deck(self, run):
+        """The deck and the plan; on ``--restart DIR``, the cases recorded there (the same deck and
+        plan required)."""
+        comm, args = run.comm, run.args
+        deck = cli.read_deck(comm, iso.SCHEMA, args, overrides=QUICK_SET if args.quick else [],
+                             default_config=STUDY_DECK, check=lambda deck: self.plan_of(run, deck))
+        self.header = plain_json({"deck": deck, "plan": self.plan.__dict__})
+        self.finished = ({r["id"]: r for r in study_restart(comm, args.restart, self.header, "a mixture study")
+                          if "id" in r} if args.restart else {})
+        return deck
 
-    records = task_farm.run_cases(comm, cases, run_one, finished=finished, key=study.case_id, on_record=log.append)
-    if comm.is_root:
-        summary = study.summarise(records, plan)
-        failed = [r["id"] for r in records if r["status"] != "ok"]
-        summary["meta"] = {"pardem_version": pardem.__version__, "driver": "mixture", "n_ranks": comm.size,
-                           "wall_seconds": time.perf_counter() - t_start, "restarted_from": args.restart,
-                           "cases_reused": len(finished), "failed_cases": failed,
+    def plan_of(self, run, deck):
+        """The plan and its cases from the options and the deck; DeckError if a case's deck fails
+        the isotropic checks (sizes, memory)."""
+        self.plan = make_plan(run.args, deck)
+        self.cases = self.plan.cases()
+        for case in self.cases:
+            check_deck(iso.SCHEMA, study.case_deck(deck, self.plan, case))
+
+    def build(self, run):
+        comm, args = run.comm, run.args
+        self.plot = not args.no_plot and _have_matplotlib(comm)
+        return self.plan
+
+    def start(self, run):
+        comm, plan, cases, finished, out = run.comm, self.plan, self.cases, self.finished, run.out
+        if comm.is_root:
+            start_study_folder(out, self.header, finished)
+            print(f"pardem {pardem.__version__}: mixture study, {len(cases)} packings of {plan.n} grains "
+                  f"({plan.dimension}D) on {comm.size} rank(s) at p0 = {plan.pressure:g} Pa: R_l/R_s "
+                  f"{','.join(f'{r:g}' for r in plan.ratios)}, {plan.basis} concentration of small grains "
+                  f"{','.join(f'{c:g}' for c in plan.concentrations)}, {plan.realisations} realisation(s); "
+                  f"output {out}", flush=True)
+            if finished:
+                print(f"restart: {len(finished)} of {len(cases)} cases recorded in {run.args.restart} are not "
+                      f"run again", flush=True)
+        comm.barrier()
+
+    def execute(self, run):
+        comm, args, deck, plan = run.comm, run.args, run.deck, self.plan
+        log = RecordLog(run.out, comm.rank)
+        case_comm = comm.split_self()
+        done = [0]
+
+        def run_one(case):
+            rec = study.run_case(case_comm, deck, plan, case)
+            done[0] += 1
+            if not args.quiet and comm.is_root:
+                print(f"[rank 0, case {done[0]}] {rec['id']}: {rec['status']}, Z = {rec['Z']:.3f}, "
+                      f"phi = {rec['solid_fraction']:.4f}, {rec['order_name']} = {rec['order']:.3f} "
+                      f"({rec['seconds']:.1f} s, {time.perf_counter() - run.t_start:.0f} s elapsed)", flush=True)
+            return rec
+
+        self.records = task_farm.run_cases(comm, self.cases, run_one, finished=self.finished, key=study.case_id,
+                                           on_record=log.append)
+
+    def summary(self, run):
+        if not run.comm.is_root:
+            return {}
+        records = self.records
+        summary = study.summarise(records, self.plan)
+        summary["meta"] = {"pardem_version": pardem.__version__, "driver": "mixture", "n_ranks": run.comm.size,
+                           "wall_seconds": time.perf_counter() - run.t_start, "restarted_from": run.args.restart,
+                           "cases_reused": len(self.finished), "failed_cases": self.failed(),
                            "statistics": "mean and sample standard deviation (ddof = 1) over the realisations "
-                                         "whose preparation converged", "deck": deck}
+                                         "whose preparation converged", "deck": run.deck}
         summary["cases"] = records
-        write_json(os.path.join(out, "mixture.json"), summary)
+        return summary
+
+    def failed(self):
+        return [r["id"] for r in self.records if r["status"] != "ok"]
+
+    def finish(self, run, summary):
+        out, records, failed = run.out, self.records, self.failed()
         print(study.format_table(summary))
         written = ["mixture.json"]
-        if plot:
+        if self.plot:
             from pardem.io.mixture_plot import plot_structure, plot_summary
             plot_summary(summary, os.path.join(out, "mixture.png"))
             plot_structure(summary, os.path.join(out, "mixture_structure.png"))
@@ -153,7 +180,7 @@ def run(comm, args):
                   f"they are left out of the means", file=sys.stderr)
         print(f"wrote {', '.join(os.path.join(out, w) for w in written)} in "
               f"{summary['meta']['wall_seconds']:.1f} s", flush=True)
-    return EXIT_OK
+        return cli.EXIT_OK
 
 
 def _have_matplotlib(comm):
@@ -167,8 +194,7 @@ def _have_matplotlib(comm):
 
 
 def main(argv=None):
-    comm = Communicator()
-    return run_driver(comm, run, parser(comm).parse_args(argv))
+    return protocol_main(Mixture, parser, argv)
 
 
 if __name__ == "__main__":

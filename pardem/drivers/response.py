@@ -43,7 +43,8 @@ import numpy as np
 import pardem
 from pardem.config import DeckError
 from pardem.drivers import cli
-from pardem.drivers.runner import GranularDriver, protocol_main
+from pardem.drivers.granular import GranularDriver
+from pardem.drivers.runner import protocol_main
 from pardem.io import response_plot
 from pardem.protocols import granular_output as gout
 from pardem.protocols import isotropic as iso

@@ -1,23 +1,30 @@
-"""``run_protocol``: the life of one restartable run, shared by the drivers.
+"""``run_protocol``: the life of one run, shared by every driver.
 
 A driver describes its protocol with a ``ProtocolDriver`` (deck schema, how to build the case, how
-to restore it from a checkpoint, what one run executes, what its summary holds) and calls
-``run_protocol`` (its ``main`` is ``protocol_main``); everything else is the same for every driver
-and lives here, in this order:
+to restore it, what the run executes, what its summary holds) and calls ``run_protocol`` (its
+``main`` is ``protocol_main``); everything else is the same for every driver and lives here, in
+this order:
 
 1. the deck: ``--config``/``--set`` (on ``--restart``, the checkpoint's deck is the base), the
    protocol's checks, the restart policy (a restart may change only the keys the protocol lists);
 2. the output folder checked (``cli.check_output``: path, lock, earlier results), then the case:
    ``build`` or ``restore``; bad input ends here with one line and exit 2, before any output exists;
-3. the output folder taken (``cli.output_dir``), the protocol's series, the progress reporter, and the
-   operations: the checkpoint writer (``[checkpoint]``, payload from the protocol), ParaView
-   snapshots (``output.vtk_every``), the test fault injection (``PARDEM_FAULT``);
+3. the output folder taken (``cli.output_dir``), then ``setup``: the progress reporter, the
+   protocol's series (``start``), and the operations: the checkpoint writer (``[checkpoint]``,
+   payload from the protocol), ParaView snapshots (``output.vtk_every``), the test fault
+   injection (``PARDEM_FAULT``);
 4. ``execute``: the protocol's run. ``--steps`` may stop it early (``StepLimit``: not an error); a
    stop signal ends it at a step boundary on every rank (``Interrupted``);
 5. the final checkpoint (``checkpoint.at_end``; after a stop signal ``checkpoint.at_stop``), the
    summary JSON (common fields plus the protocol's), the plot, the printed result, the exit code
    (0, or ``EXIT_NOT_MEASURED`` when the run was too short to measure; an interrupted run exits
    128 + the signal number through ``cli.run_driver``).
+
+A study of many cases (``StudyDriver``: realisations or parameter points, spread over the ranks by
+``pardem.parallel.task_farm`` or run one after the other) has the same life without the parts of
+one simulation: its ``execute`` runs the cases, each with its own outputs and record
+(``DIR/records``, what ``--restart DIR`` continues from), and its summary's common fields are those
+that belong to no one simulation.
 """
 import contextlib
 import os
@@ -28,17 +35,14 @@ from dataclasses import dataclass, field
 import pardem
 from pardem.config import DeckError
 from pardem.drivers import cli
-from pardem.errors import DecompositionError, Interrupted
+from pardem.errors import DecompositionError, Interrupted, StepLimit
 from pardem.engine.simulation import FaultInjection
 from pardem.io import checkpoint
 from pardem.io.checkpoint_writer import CheckpointWriter
 from pardem.io.paraview import ParaViewWriter
 from pardem.io.progress import Progress
 from pardem.io.summary import write_json
-from pardem import restart
 from pardem.parallel.communicator import Communicator
-from pardem.protocols import granular_output as gout
-from pardem.protocols.granular_output import StepLimit
 
 
 @dataclass
@@ -59,6 +63,7 @@ class Run:
     interrupted: Interrupted = None
     files: contextlib.ExitStack = None
     series: object = None      # the protocol's series writer, if any
+    fault: FaultInjection = None   # PARDEM_FAULT's operation, if any
 
     @property
     def sim(self):
@@ -70,12 +75,19 @@ class ProtocolDriver:
 
     Attributes: ``name`` (the driver's name: output folder ``runs/<name>-<stamp>``, summary
     ``<summary_name>``), ``schema`` (the deck), ``error_types`` (exceptions of build/restore that are
-    bad input: one line, exit 2).
+    bad input: one line, exit 2), ``common_key`` (where the summary's common fields go: None at its
+    top level, else under this key, beside the protocol's own fields there), ``stops_together``
+    (a stop signal reaches every rank at the same step: True for one simulation).
+
+    The defaults are those of one restartable simulation (``run.case.sim``); ``StudyDriver`` holds
+    those of a study of many cases.
     """
     name = ""
     schema = None
     summary_name = "summary.json"
     error_types = ()
+    common_key = None
+    stops_together = True
 
     def total_steps(self, run):
         """The run's total step count from its start, if known (the progress ETA), else None."""
@@ -98,6 +110,13 @@ class ProtocolDriver:
     def base_deck(self, run):
         return run.meta["deck"]
 
+    def check_environment(self, run):
+        """Bad input outside the deck, judged with it (one verdict on every rank): the checkpoint
+        driver (``"mpio"`` needs an MPI h5py), ``PARDEM_FAULT``, ``PARDEM_CHECKPOINT_PAUSE``."""
+        checkpoint.parallel_hdf5(run.deck["checkpoint"]["driver"])
+        run.fault = FaultInjection.from_environment()
+        checkpoint.checkpoint_pause()
+
     def build(self, run):
         raise NotImplementedError
 
@@ -108,6 +127,30 @@ class ProtocolDriver:
         """``(groups, series, attrs)`` of a checkpoint of the current state."""
         raise NotImplementedError
 
+    def setup(self, run):
+        """After the output folder is taken: the progress reporter, ``start``, and the operations
+        of every ``sim.run`` (``run.operations``): the checkpoint writer, the ParaView writer
+        (``output.vtk_every``, the initial state at step 0), the fault injection."""
+        comm, deck, sim, args = run.comm, run.deck, run.sim, run.args
+        run.progress = Progress(comm, self.total_steps(run), deck["run"]["progress_seconds"],
+                                int(comm.sum(sim.elements.n_owned)), quiet=args.quiet)
+        self.start(run)
+        ck = deck["checkpoint"]
+        run.writer = CheckpointWriter(lambda: self.payload(run), os.path.join(run.out, "checkpoints"),
+                                      ck["every_steps"], ck["every_seconds"], ck["keep"], ck["driver"],
+                                      start_step=sim.step_count)
+        run.operations = [run.writer]
+        vtk_every = deck["output"]["vtk_every"]
+        if vtk_every:
+            trigger, at_end = self.paraview_trigger(run, vtk_every)
+            pv = ParaViewWriter(os.path.join(run.out, "paraview"), comm, trigger, at_end=at_end,
+                                resume_step=sim.step_count if args.restart else None, dt=sim.dt)
+            run.operations.append(pv)
+            if sim.step_count == 0:
+                pv(sim)    # the initial state
+        if run.fault:
+            run.operations.append(run.fault)
+
     def start(self, run):
         """Open the series files (register closing with ``run.files``), print the header."""
 
@@ -115,14 +158,72 @@ class ProtocolDriver:
         """The run itself (``run.operations`` to pass to every ``sim.run``)."""
         raise NotImplementedError
 
+    def final_checkpoint(self, run):
+        """After ``execute``: the final checkpoint (``checkpoint.at_end``; after a stop signal
+        ``checkpoint.at_stop``); returns whether it was written."""
+        ck = run.deck["checkpoint"]
+        final = ck["at_stop"] if run.interrupted is not None else ck["at_end"]
+        if final:
+            run.writer.write(run.sim)
+        return bool(final)
+
+    def interrupted(self, run, err, final):
+        """Tell ``err`` where to restart from (``cli.interrupted_line`` words it)."""
+        err.checkpoint = run.writer.written[-1] if run.writer.written else None
+        err.final = final
+
     def summary(self, run):
         """The protocol's fields of the summary (collective; rank 0's value is written)."""
         return {}
+
+    def common_summary(self, run):
+        """The summary's common fields (rank 0): those of every driver plus the simulation's."""
+        sim = run.sim
+        return _common_fields(run, self.name, {"steps": sim.step_count, "time": sim.time, "dt": sim.dt},
+                              {"checkpoints": run.writer.written})
 
     def finish(self, run, summary):
         """Rank 0, after the summary is written: plots and the printed result; returns the exit
         code (``cli.EXIT_OK`` or ``cli.EXIT_NOT_MEASURED``)."""
         return cli.EXIT_OK
+
+
+class StudyDriver(ProtocolDriver):
+    """A study of many cases (realisations, parameter points: a task farm over the ranks, or one
+    case after the other on every rank), each with its own outputs and record: no one simulation,
+    so no progress reporter, checkpoint or ParaView writer of the runner's; ``execute`` runs the
+    cases. ``--restart DIR`` names an earlier study's output folder, whose records the study reads
+    with its deck (``read_deck``: ``cli.study_restart`` checks the header, so another deck or plan
+    is refused before the output folder); ``inspect`` may read the header first (the base deck). A stop
+    signal ends the study with the records written so far (each case's rank stops at its own
+    step, so no collective summary follows), from which ``--restart`` continues. The summary's
+    common fields go under ``meta`` unless ``common_key`` says otherwise."""
+    common_key = "meta"
+    stops_together = False
+
+    def inspect(self, run):
+        return {}
+
+    def base_deck(self, run):
+        return None
+
+    def check_environment(self, run):
+        pass
+
+    def restore(self, run):
+        return self.build(run)
+
+    def setup(self, run):
+        self.start(run)
+
+    def final_checkpoint(self, run):
+        return False
+
+    def interrupted(self, run, err, final):
+        err.records = run.out
+
+    def common_summary(self, run):
+        return _common_fields(run, self.name)
 
 
 def protocol_main(driver_type, parser, argv=None):
@@ -138,14 +239,12 @@ def run_protocol(comm, args, protocol):
     with contextlib.ExitStack() as files:      # closes the series files whatever happens
         run = Run(comm=comm, args=args, t_start=time.perf_counter(), files=files)
         errors = (DeckError, checkpoint.CheckpointError, DecompositionError, *protocol.error_types)
-        problem = fault = None
+        problem = None
         try:
             if args.restart:
                 run.meta = protocol.inspect(run)
             run.deck = protocol.read_deck(run)
-            checkpoint.parallel_hdf5(run.deck["checkpoint"]["driver"])   # refuse "mpio" without MPI h5py now
-            fault = FaultInjection.from_environment()     # a malformed PARDEM_FAULT is bad input
-            checkpoint.checkpoint_pause()                 # ... and PARDEM_CHECKPOINT_PAUSE
+            protocol.check_environment(run)
         except errors as err:
             problem = str(err)
         cli.agree(comm, problem)      # one verdict on every rank before any collective build step
@@ -155,25 +254,7 @@ def run_protocol(comm, args, protocol):
         except errors as err:
             cli.fail_usage(comm, str(err))
         run.out = cli.output_dir(comm, args, protocol.name, out=out)   # checked again, created, locked
-        deck, sim = run.deck, run.sim
-        run.progress = Progress(comm, protocol.total_steps(run), deck["run"]["progress_seconds"],
-                                int(comm.sum(sim.elements.n_owned)), quiet=args.quiet)
-        protocol.start(run)
-        ck = deck["checkpoint"]
-        run.writer = CheckpointWriter(lambda: protocol.payload(run), os.path.join(run.out, "checkpoints"),
-                                      ck["every_steps"], ck["every_seconds"], ck["keep"], ck["driver"],
-                                      start_step=sim.step_count)
-        run.operations = [run.writer]
-        vtk_every = deck["output"]["vtk_every"]
-        if vtk_every:
-            trigger, at_end = protocol.paraview_trigger(run, vtk_every)
-            pv = ParaViewWriter(os.path.join(run.out, "paraview"), comm, trigger, at_end=at_end,
-                                resume_step=sim.step_count if args.restart else None, dt=sim.dt)
-            run.operations.append(pv)
-            if sim.step_count == 0:
-                pv(sim)    # the initial state
-        if fault:
-            run.operations.append(fault)
+        protocol.setup(run)
         try:
             protocol.execute(run)
         except StepLimit as err:
@@ -182,82 +263,40 @@ def run_protocol(comm, args, protocol):
             run.interrupted = err
             run.stopped = str(err)
         files.close()
-        final = ck["at_stop"] if run.interrupted is not None else ck["at_end"]
-        if final:
-            run.writer.write(run.sim)
+        final = protocol.final_checkpoint(run)
+        if run.interrupted is not None and not protocol.stops_together:
+            protocol.interrupted(run, run.interrupted, final)
+            raise run.interrupted
         result = protocol.summary(run)
         # the peak resident memory of every rank [MiB] (ru_maxrss: KiB on Linux; after a restart,
         # of the restarted run's processes only)
         rss = comm.allgather(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
         code = cli.EXIT_OK
         if comm.is_root:
-            summary = _common_summary(run, protocol.name)
-            summary["peak_rss_mib"] = rss
-            summary.update(result)
+            common = protocol.common_summary(run)
+            common["peak_rss_mib"] = rss
+            if protocol.common_key is None:
+                summary = {**common, **result}
+            else:
+                summary = dict(result)
+                summary[protocol.common_key] = {**common, **result.get(protocol.common_key, {})}
             write_json(os.path.join(run.out, protocol.summary_name), summary)
             if run.interrupted is None:
                 code = protocol.finish(run, summary)
         if run.interrupted is not None:
             # cli.run_driver prints the one line (with the checkpoint to restart from) and exits
             # 128 + the signal number
-            run.interrupted.checkpoint = run.writer.written[-1] if run.writer.written else None
-            run.interrupted.final = bool(final)
+            protocol.interrupted(run, run.interrupted, final)
             raise run.interrupted
         return comm.bcast(code)
 
 
-def _common_summary(run, name):
-    sim = run.sim
-    return {"pardem_version": pardem.__version__, "driver": name, "n_ranks": run.comm.size,
-            "steps": sim.step_count, "time": sim.time, "dt": sim.dt,
+def _common_fields(run, name, clock=None, written=None):
+    """The summary fields of every driver (rank 0); a simulation's ``clock`` (steps, time, dt) and
+    ``written`` (its checkpoints) in their places."""
+    return {"pardem_version": pardem.__version__, "driver": name, "n_ranks": run.comm.size, **(clock or {}),
             "wall_seconds": time.perf_counter() - run.t_start,
             "finished": run.stopped is None, "stopped": run.stopped,
             "interrupted": (None if run.interrupted is None else
                             {"signal": run.interrupted.signum, "step": run.interrupted.step}),
-            "restarted_from": run.args.restart, "checkpoints": run.writer.written, "deck": run.deck}
-
-
-class GranularDriver(ProtocolDriver):
-    """The granular drivers' common part: a checkpoint written by the same driver, the restart
-    policy ``restart_may_change`` (keys besides [output] and [checkpoint]; ``restart_what`` words
-    it for the message), ``pardem.engine.granular`` cases, the series ``<name>.csv``/``.h5`` of
-    ``columns`` with ``units`` (rank 0; rows kept in the checkpoints), the protocol's ``run.state``."""
-    restart_may_change = ()
-    restart_what = ""
-    columns = units = description = ()
-    int_columns = ("step",)
-    slab_axes = "xyz"
-
-    def inspect(self, run):
-        return gout.inspect_restart(run.args.restart, self.name, comm=run.comm)
-
-    def read_deck(self, run):
-        deck = super().read_deck(run)
-        self.check(run, deck)
-        if run.meta is not None:
-            gout.check_restart(run.args.restart, run.meta, deck, self.schema, run.args.steps,
-                               self.restart_may_change, self.restart_what)
-        return deck
-
-    def check(self, run, deck):
-        """Protocol checks of the deck (DeckError) and command-line extras."""
-
-    def restore(self, run):
-        run.state = run.meta["protocol"]
-        return restart.load_case(run.comm, run.args.restart, meta=run.meta,
-                                 slab_axis=self.slab_axes.index(run.deck["run"]["slab_axis"]))
-
-    def rows(self, run):
-        """The series rows so far (from the checkpoint on restart)."""
-        return gout.rows_of(run.meta["series"], self.columns, self.int_columns) if run.meta else []
-
-    def open_series(self, run):
-        run.series = gout.Series(run.comm, run.out, self.name, self.columns, self.units, self.description,
-                                 self.rows(run), self.int_columns)
-        run.files.callback(run.series.close)
-
-    def payload(self, run):
-        return gout.payload(run.case, run.deck, self.protocol_state(run), run.series.rows, self.columns)
-
-    def protocol_state(self, run):
-        return run.state
+            "restarted_from": run.args.restart, **(written or {}), "deck": run.deck}

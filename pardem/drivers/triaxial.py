@@ -31,7 +31,8 @@ import time
 
 import pardem
 from pardem.drivers import cli
-from pardem.drivers.runner import GranularDriver, protocol_main
+from pardem.drivers.granular import GranularDriver
+from pardem.drivers.runner import protocol_main
 from pardem.io import triaxial_plot
 from pardem.protocols import triaxial
 

@@ -87,6 +87,7 @@ from pardem.physics.timestep import rayleigh_time_step
 from pardem.protocols import deck_checks as dc
 from pardem.protocols import isotropic
 from pardem.protocols.granular_output import CHECKPOINT_SECTION, REPLICATE_SECTION, StepLimit, run_section
+from pardem.protocols import output_deck
 
 ISO = isotropic.SCHEMA
 
@@ -171,12 +172,8 @@ SCHEMA = Schema({
     },
     "run": run_section("Rayleigh critical step", "auto = 0.2 x the smallest radius"),
     "checkpoint": CHECKPOINT_SECTION,
-    "output": {
-        "samples": Field(200, number(lo=2, lo_open=False, integer=True), "rows of the loading series per pressure"),
-        "vtk_every": Field(0, number(lo=0, lo_open=False, integer=True),
-                           "steps between ParaView snapshots (DIR/paraview/pardem.pvd); 0 = none"),
-        "plot": Field(True, boolean, "draw biaxial.png and the localisation maps (needs matplotlib)"),
-    },
+    "output": output_deck.output_section(samples=output_deck.samples("rows of the loading series per pressure"),
+                                         plot_figures="biaxial.png and the localisation maps"),
 }, checks=(isotropic.sample_checks, biaxial_checks, isotropic.pressure_checks))
 
 COLUMNS = ("step", "time", "pressure_index", "pc", "eps_axial", "eps_vol", "sigma_axial", "sigma_lateral",

@@ -39,7 +39,7 @@ from dataclasses import asdict, dataclass
 
 from pardem.physics.anisotropy import LAWS as ANISOTROPY_LAWS
 from pardem.config import DeckError, Field, Schema, boolean, choice, number, positive, same_or, strength, triple
-from pardem.protocols import deck_checks
+from pardem.protocols import deck_checks, output_deck
 
 DIRECTIONS = "LRT"
 R_MAX = 2.0            # largest adimensional bond radius accepted (W's calibrated set has 1.14)
@@ -134,12 +134,10 @@ CALIBRATE_SCHEMA = {
         "transits": Field(6.0, number(1.0, 1000.0, lo_open=False, hi_open=False),
                           "compact: loading time of every test in wave transits across the domain"),
     },
-    "output": {
-        "series_every": Field(0, number(lo=0, lo_open=False, integer=True),
-                              "--verify: steps between series samples of a run; 0 = about 200 per run"),
-        "vtk_every": Field(0, number(lo=0, lo_open=False, integer=True),
-                           "--verify: steps between ParaView snapshots (DIR/paraview/<run>/pardem.pvd); 0 = none"),
-    },
+    "output": output_deck.output_section(
+        series_every=output_deck.series_every("--verify: steps between series samples of a run; 0 = about 200 "
+                                              "per run", zero=0),
+        vtk=output_deck.vtk_every("DIR/paraview/<run>/pardem.pvd", when="--verify: ")),
 }
 COMPACT_MIN_EDGE = 6.0       # pardem.domains.compact.MIN_EDGE (mean radii per box edge)
 

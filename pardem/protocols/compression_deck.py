@@ -2,12 +2,12 @@
 import math
 
 from pardem.physics.anisotropy import LAWS as ANISOTROPY_LAWS
-from pardem.io.checkpoint_writer import DECK_SECTION
 from pardem.physics import contact_laws
 from pardem.physics.timestep import critical_time_step, linear_contact_time_step, rayleigh_time_step
 from pardem.config import (DeckError, Field, Schema, auto_or, boolean, choice, fractions_or, number,
-                           number_or_triple, optional, positive, restart_differences, strength, triple)
+                           number_or_triple, positive, restart_differences, strength, triple)
 from pardem.protocols import deck_checks as dc
+from pardem.protocols import output_deck
 
 COMPACT_MIN_EDGE = 6.0   # pardem.domains.compact.MIN_EDGE: box edges in mean radii a packing needs
 
@@ -279,13 +279,8 @@ COMPRESS_SCHEMA = Schema({
         "initial_split": Field("balanced", fractions_or("balanced"),
                                "initial cuts: balanced, or cumulative element fractions (one per cut)"),
     },
-    "checkpoint": dict(DECK_SECTION),
-    "output": {
-        "series_every": Field(0, optional(number(lo=0, integer=True)),
-                              "steps between series samples; 0 = about 200 samples per run"),
-        "vtk_every": Field(0, number(lo=0, lo_open=False, integer=True),
-                           "steps between ParaView snapshots (DIR/paraview/pardem.pvd); 0 = none"),
-    },
+    "checkpoint": dict(output_deck.CHECKPOINT_SECTION),
+    "output": output_deck.output_section(series_every=output_deck.series_every()),
 }, checks=COMPRESS_CHECKS)
 
 # Keys a restart may change: the run length and what is written; anything else

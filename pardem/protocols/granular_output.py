@@ -16,15 +16,14 @@ import time
 
 import numpy as np
 
+from pardem.errors import StepLimit  # noqa: F401 - the protocols raise it from here
 from pardem.config import DeckError, Field, auto_or, choice, number, positive, restart_differences
 from pardem import restart
 from pardem.protocols import deck_checks
+from pardem.protocols.output_deck import CHECKPOINT_SECTION  # noqa: F401 - the granular schemas read it here
 from pardem.io import checkpoint
-from pardem.io.checkpoint_writer import DECK_SECTION
 from pardem.io.series import SeriesCSV, dict_row
 from pardem.io.series_h5 import SeriesH5
-
-CHECKPOINT_SECTION = DECK_SECTION   # the [checkpoint] section, shared with compress
 
 
 def dimension_value(name, v):
@@ -91,10 +90,6 @@ def restart_help(may_change):
     """The --restart help of a granular driver whose restart may change the keys ``may_change``."""
     return ("continue the run of this checkpoint; its deck is used unless --config is given, and --set "
             "may change only " + ", ".join(may_change) + " and the [output] and [checkpoint] keys")
-
-
-class StepLimit(Exception):
-    """The run reached its ``--steps`` limit (not an error: the driver checkpoints and stops)."""
 
 
 def deck_differences(old, new, schema, may_change=(), may_change_sections=("output", "checkpoint")):

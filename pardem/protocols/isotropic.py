@@ -120,6 +120,7 @@ from pardem.parallel.exact_sum import exact_sum
 from pardem.protocols import moduli_check
 from pardem.protocols.granular_output import (CHECKPOINT_SECTION, DOMAIN_SECTION, StepLimit, domain_checks,
                                               run_section)
+from pardem.protocols import output_deck
 
 ROW_KEYS = ("p0", "p", "Z", "Z_no_rattlers", "solid_fraction", "K_affine", "K_relaxed", "mu_affine",
             "mu_relaxed", "K_static", "mu_static")
@@ -256,11 +257,7 @@ SCHEMA = Schema({
     "run": run_section("Rayleigh critical step",
                        "displacement budget between list rebuilds; auto = 0.2 x the smallest radius"),
     "checkpoint": CHECKPOINT_SECTION,
-    "output": {
-        "vtk_every": Field(0, number(lo=0, lo_open=False, integer=True),
-                           "steps between ParaView snapshots (DIR/paraview/pardem.pvd); 0 = none"),
-        "plot": Field(True, boolean, "draw isotropic.png and force_distribution.png (needs matplotlib)"),
-    },
+    "output": output_deck.output_section(plot_figures="isotropic.png and force_distribution.png"),
 }, checks=(domain_checks, sample_checks, run_checks, pressure_checks))
 
 # the series: one row per equilibrium check (every preparation.check_every steps) of every stage

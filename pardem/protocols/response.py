@@ -98,6 +98,7 @@ from pardem.physics.contact_frame import pair_geometry
 from pardem.protocols import deck_checks as dc
 from pardem.protocols import isotropic as iso
 from pardem.protocols.granular_output import CHECKPOINT_SECTION, REPLICATE_SECTION, StepLimit, run_section
+from pardem.protocols import output_deck
 
 
 def _times_value(name, v):
@@ -186,15 +187,13 @@ SCHEMA = Schema({
     "run": run_section("Rayleigh critical step",
                        "displacement budget between list rebuilds; auto = 0.2 x the smallest radius"),
     "checkpoint": CHECKPOINT_SECTION,
-    "output": {
-        "layer_height": Field(1.0, number(0.1, 100.0), "height of the horizontal layers [mean diameters]"),
-        "x_bin": Field(1.0, number(0.1, 100.0), "width of the x bins [mean diameters]"),
-        "vtk_every": Field(0, number(lo=0, lo_open=False, integer=True),
-                           "steps between ParaView snapshots of the whole state (DIR/paraview); 0 = none"),
-        "perturbation_vtk": Field(True, boolean, "ParaView snapshots of the perturbation (DIR/response_vtk: "
-                                                 "dsigma_yy, displacement per grain) at each record"),
-        "plot": Field(True, boolean, "draw response.png (needs matplotlib)"),
-    },
+    "output": output_deck.output_section(
+        before={"layer_height": Field(1.0, number(0.1, 100.0), "height of the horizontal layers [mean diameters]"),
+                "x_bin": Field(1.0, number(0.1, 100.0), "width of the x bins [mean diameters]")},
+        vtk=output_deck.vtk_every("DIR/paraview", of="the whole state"),
+        after={"perturbation_vtk": Field(True, boolean, "ParaView snapshots of the perturbation (DIR/response_vtk: "
+                                                        "dsigma_yy, displacement per grain) at each record")},
+        plot_figures="response.png"),
 }, checks=(iso.sample_checks, run_checks, iso.pressure_checks))
 
 SERIES_COLUMNS = ("step", "time", "stage", "unbalanced", "kinetic", "top_force", "bottom_force")

@@ -35,12 +35,13 @@ from pardem.engine import granular
 from pardem.engine.system import (Cell, ContactModel, Decomposition, Integration, Particles, System,
                                   set_contact_params)
 from pardem.physics.contact_laws import critical_time_step, law_params
-from pardem.config import DeckError, Field, Schema, auto_or, boolean, choice, number, positive
+from pardem.config import DeckError, Field, Schema, auto_or, choice, number, positive
 from pardem.protocols import deck_checks as dc
 from pardem.engine.periodic_cell import PeriodicCell
 from pardem.triggers import At, Or, as_trigger
 from pardem.parallel.exact_sum import exact_sum
 from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit, run_section
+from pardem.protocols import output_deck
 
 AXES = "xyz"
 
@@ -142,12 +143,8 @@ SCHEMA = Schema({
                        "must exceed the cement's largest stretch sqrt(2 E_max / Sn); auto = 0.1 x the mean "
                        "radius sample.radius"),
     "checkpoint": CHECKPOINT_SECTION,
-    "output": {
-        "samples": Field(200, number(lo=2, lo_open=False, integer=True), "rows of the loading series"),
-        "vtk_every": Field(0, number(lo=0, lo_open=False, integer=True),
-                           "steps between ParaView snapshots (DIR/paraview/pardem.pvd); 0 = none"),
-        "plot": Field(True, boolean, "draw triaxial.png (needs matplotlib)"),
-    },
+    "output": output_deck.output_section(samples=output_deck.samples("rows of the loading series"),
+                                         plot_figures="triaxial.png"),
 }, checks=(sample_checks, run_checks, pressure_checks))
 
 COLUMNS = ("step", "time", "eps_axial", "eps_vol", "q", "p", "sigma_axial", "sigma_lateral_1",
