@@ -108,7 +108,11 @@ def add(sim, *fixes):
     first half kick uses, were computed without the new fix: it is applied to them at once (then
     the constraints after it again), so that it acts from the next step on exactly as if it had
     been there from the start. (Appending to ``sim.fixes`` directly skips this: the fix then
-    acts from the second half of the next step.)
+    acts from the second half of the next step.) A simulation just restored by ``pardem.load``
+    (``sim.forces_restored``) holds the forces its checkpoint stored, which already include the
+    fixes active when it was saved: adding those fixes again applies nothing at once, so the
+    restart continues the saved run exactly (a fix the saved run did not have acts from the
+    second half of the next step).
     """
     for fix in fixes:
         if not callable(getattr(fix, "post_force", None)):
@@ -118,6 +122,8 @@ def add(sim, *fixes):
         while at > 0 and getattr(sim.fixes[at - 1], "stage", LOAD) > stage:
             at -= 1
         sim.fixes.insert(at, fix)
+        if getattr(sim, "forces_restored", False):
+            continue
         if sim.step_count > 0 or getattr(sim, "initial_forces", False):
             fix.post_force(sim)
             for later in sim.fixes[at + 1:]:

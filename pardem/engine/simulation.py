@@ -141,6 +141,7 @@ class Simulation:
         # the forces of the step-0 state are computed (by the first ``run``): a second run from
         # step 0 must not add them again, nor move the tangential springs twice
         self.initial_forces = False
+        self.forces_restored = False    # set by a restore: the forces are the checkpoint's
 
     @property
     def particles(self):
@@ -365,6 +366,8 @@ class Simulation:
         if (isinstance(n_steps, (bool, np.bool_)) or not isinstance(n_steps, (int, np.integer))
                 or n_steps < 0):
             raise ValueError(f"n_steps = {n_steps!r}: expected an integer >= 0 (steps to run)")
+        if n_steps > 0:
+            self.forces_restored = False
         operations = list(self.operations) + list(operations)
         triggers = [_trigger_of(op) for op in operations]
         at_end = [bool(getattr(op, "at_end", False)) for op in operations]

@@ -92,6 +92,7 @@ def resume(sim, meta, same):
     rank count rank 0 takes the global sums)."""
     sim.step_count = int(meta["step"])
     sim.time = sim.step_count * sim.dt
+    sim.forces_restored = True      # the stored forces include the saved run's fixes (fixes.add)
     sim.pairs_freed = bool(int(meta.get("pairs_freed", 0)))
     rs = meta.get("run_state")
     if rs is None:
