@@ -167,8 +167,11 @@ def run_protocol(comm, args, protocol):
         vtk_every = deck["output"]["vtk_every"]
         if vtk_every:
             trigger, at_end = protocol.paraview_trigger(run, vtk_every)
+            # a restart's collections list the earlier run's snapshots up to the checkpoint
+            earlier = cli.restarted_run(args.restart) if args.restart else None
             pv = ParaViewWriter(os.path.join(run.out, "paraview"), comm, trigger, at_end=at_end,
-                                resume_step=sim.step_count if args.restart else None, dt=sim.dt)
+                                resume_step=sim.step_count if args.restart else None, dt=sim.dt,
+                                previous=None if earlier is None else os.path.join(earlier, "paraview"))
             run.operations.append(pv)
             if sim.step_count == 0:
                 pv(sim)    # the initial state
