@@ -30,7 +30,7 @@ from pardem.config import DeckError
 from pardem.drivers import cli
 from pardem.errors import DecompositionError, Interrupted
 from pardem.engine.simulation import FaultInjection
-from pardem.io import checkpoint
+from pardem.io import checkpoint, figures
 from pardem.io.checkpoint_writer import CheckpointWriter
 from pardem.io.paraview import ParaViewWriter
 from pardem.io.progress import Progress
@@ -199,7 +199,10 @@ def run_protocol(comm, args, protocol):
             summary.update(result)
             write_json(os.path.join(run.out, protocol.summary_name), summary)
             if run.interrupted is None:
+                before = figures.png_times(run.out)
                 code = protocol.finish(run, summary)
+                if run.stopped is not None:   # a --steps stop: the figures it drew say so
+                    figures.stamp_figures(run.out, before, figures.truncation_note(summary))
         if run.interrupted is not None:
             # cli.run_driver prints the one line (with the checkpoint to restart from) and exits
             # 128 + the signal number
