@@ -152,6 +152,23 @@ def test_one_and_two_ranks_write_the_same_network(tmp_path):
     assert sorted(gid) == list(range(n))
     f = np.zeros((n, 3))
     f[gid] = np.concatenate([s["f"] for s in states])
+    # ParaView: the contact lines are the same on 1 and 2 ranks; the owned points' coordination
+    # of the two pieces is the number of pairs of each grain in the written network
+    import meshio
+    from test_paraview import read_point_data
+    a, b = (meshio.read(out[k] / "pv" / f"contacts-{STEPS:08d}.vtu") for k in (1, 2))
+    np.testing.assert_array_equal(a.points, b.points)
+    for k in a.cell_data:
+        np.testing.assert_array_equal(a.cell_data[k][0], b.cell_data[k][0], err_msg=k)
+    net = read(out[2] / "contacts.h5", STEPS)["gid"]
+    z = np.bincount(net.ravel(), minlength=n)
+    seen = np.zeros(n, dtype=int)
+    for r in range(2):
+        _, pd = read_point_data(out[2] / "pv" / f"snapshot-{STEPS:08d}-r{r:04d}.vtu")
+        owned = pd["vtkGhostType"] == 0
+        np.testing.assert_array_equal(pd["coordination"][owned], z[pd["gid"][owned]])
+        seen[pd["gid"][owned]] += 1
+    assert np.all(seen == 1)
     data = read(out[2] / "contacts.h5", STEPS)
     F = data["normal_force"] + data["tangential_force"]
     g_f = np.zeros((n, 3))
