@@ -15,7 +15,8 @@ File layout (``path``), one group per call::
         overlap              float64 [m]: ``R_i + R_j - |branch|`` [m], > 0
         sliding              uint8 [m]: 1 when ``|F_t|`` sits on the Coulomb cap ``mu fn``
 
-        normal_damping       float64 [m, 3]: the law's normal dashpot share on i [N] (0 for an undamped law)
+        normal_damping       float64 [m, 3]: the law's normal dashpot share on i [N] (0 for an undamped
+                             or cemented law)
         tangential_damping   float64 [m, 3]: the law's tangential dashpot share on i [N] (idem)
 
 Rows are sorted by ``(gid_i, gid_j)``; grain j feels the opposite forces. The pairs are those in
@@ -28,7 +29,8 @@ motion included, with a zero time step (so the spring is not advanced): the tota
 pair is ``normal_force + normal_damping + tangential_force + tangential_damping``, the dashpot
 clipped and capped as the law does it. The step itself applied the dashpot at the half-step
 velocities, which it no longer holds: the written share differs from the applied one by the
-velocity change over half a step. A cement's force is not written. ``sliding`` compares ``|F_t|``
+velocity change over half a step. A cement's force is not written (nor, for a cemented law, the
+dashpot shares: zeros). ``sliding`` compares ``|F_t|``
 with ``mu fn`` to a relative 1e-9 (the cap's rescaling rounds), ``fn`` the whole normal force (the
 dashpot's share included, as the laws cap the spring).
 
@@ -106,7 +108,9 @@ def damping_parts(sim, p, n, elastic):
     force on i ``elastic`` [m, 3] [N]: normal plus stored tangential): ``(normal [m, 3],
     tangential [m, 3])`` [N] on i at the current velocities (module docstring): the law's force
     less its elastic parts."""
-    if len(p) == 0 or not getattr(sim.contacts.params, "damped", False):
+    params = sim.contacts.params
+    # a cemented law's kernel adds the cement's force, which is no dashpot: shares left at zero
+    if len(p) == 0 or not getattr(params, "damped", False) or getattr(params, "cemented", False):
         return np.zeros((len(p), 3)), np.zeros((len(p), 3))
     df = _pair_forces(sim, p) - elastic
     normal = np.sum(df * n, axis=1)[:, None] * n
