@@ -17,6 +17,8 @@ import numpy as np
 from pardem import restart
 import pytest
 
+from pardem.io.series import read_series_rows   # header entries 'name [unit]', keyed by name
+
 from pardem.protocols import isotropic
 from pardem.engine.open_cell import open_axes
 from pardem.parallel.communicator import Communicator
@@ -527,14 +529,12 @@ def short_run(tmp_path_factory):
 @pytest.mark.mpi
 @pytest.mark.skipif(MPIEXEC is None, reason="no mpiexec")
 def test_short_biaxial_driver_outputs_and_lateral_stress_within_2_percent_at_small_strain(short_run):
-    import csv
     import json
     out = short_run
     for name in ("biaxial.csv", "biaxial.h5", "biaxial.json", "biaxial.png", "localisation-0-0.png",
                  "localisation-0-0.vtu", "localisation-0-1.png"):
         assert (out / name).exists(), name
-    with open(out / "biaxial.csv", newline="") as fh:
-        rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(fh)]
+    rows = [{k: float(v) for k, v in r.items()} for r in read_series_rows(out / "biaxial.csv")]
     summary = json.loads((out / "biaxial.json").read_text())
     assert summary["finished"] and len(summary["pressures"]) == 1
     res = summary["pressures"][0]
@@ -616,10 +616,8 @@ def test_driver_restart_in_a_localisation_window_continues_bit_for_bit(short_run
     """--steps stops the short run inside the first localisation window (its start snapshot goes
     into the checkpoint); --restart continues it: the series and the windows' results are those
     of the uninterrupted run (same 2 ranks: bit for bit)."""
-    import csv
     import json
-    with open(short_run / "biaxial.csv", newline="") as fh:
-        full = list(csv.DictReader(fh))
+    full = list(read_series_rows(short_run / "biaxial.csv"))
     stop = int(full[0]["step"]) + 1500            # window 0: eps_a 0.005 -> 0.01, steps +1114 .. +2228
     part = tmp_path / "part"
     run = [MPIEXEC, "-n", "2", sys.executable, "-m", "pardem.drivers.biaxial", "--quiet"]
@@ -632,8 +630,7 @@ def test_driver_restart_in_a_localisation_window_continues_bit_for_bit(short_run
     p = subprocess.run(run + ["--restart", str(ck), "--out", str(rest)], capture_output=True, text=True, timeout=900,
                        cwd=ROOT)
     assert p.returncode == 0, p.stderr[-3000:]
-    with open(rest / "biaxial.csv", newline="") as fh:
-        again = list(csv.DictReader(fh))
+    again = list(read_series_rows(rest / "biaxial.csv"))
     assert again == full
     a = json.loads((short_run / "biaxial.json").read_text())["pressures"][0]
     b = json.loads((rest / "biaxial.json").read_text())["pressures"][0]
@@ -664,7 +661,6 @@ def test_cemented_driver_on_2_ranks_breaks_cements_and_writes_the_map_and_summar
     peak of sin phi), and the cement map and field file are written; the field file's broken
     cements (lines) are the series' final count, and per grain the broken and intact cements add
     up to twice the broken and intact counts (each cement has two ends)."""
-    import csv
     import json
     import meshio
     out = tmp_path / "cem"
@@ -676,8 +672,7 @@ def test_cemented_driver_on_2_ranks_breaks_cements_and_writes_the_map_and_summar
     assert p.returncode == 0, p.stderr[-3000:]
     for name in ("biaxial.png", "cements-0.png", "cements-0.vtu", "localisation-0-0.png", "localisation-0-0.vtu"):
         assert (out / name).exists(), name
-    with open(out / "biaxial.csv", newline="") as fh:
-        rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(fh)]
+    rows = [{k: float(v) for k, v in r.items()} for r in read_series_rows(out / "biaxial.csv")]
     broken = [int(r["cements_broken"]) for r in rows]
     assert all(a <= b for a, b in zip(broken, broken[1:]))
     assert broken[-1] > broken[0]

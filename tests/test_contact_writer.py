@@ -152,9 +152,60 @@ def test_one_and_two_ranks_write_the_same_network(tmp_path):
     assert sorted(gid) == list(range(n))
     f = np.zeros((n, 3))
     f[gid] = np.concatenate([s["f"] for s in states])
+    # ParaView: the contact lines are the same on 1 and 2 ranks; the owned points' coordination
+    # of the two pieces is the number of pairs of each grain in the written network
+    import meshio
+    from test_paraview import read_point_data
+    a, b = (meshio.read(out[k] / "pv" / f"contacts-{STEPS:08d}.vtu") for k in (1, 2))
+    np.testing.assert_array_equal(a.points, b.points)
+    for k in a.cell_data:
+        np.testing.assert_array_equal(a.cell_data[k][0], b.cell_data[k][0], err_msg=k)
+    net = read(out[2] / "contacts.h5", STEPS)["gid"]
+    z = np.bincount(net.ravel(), minlength=n)
+    seen = np.zeros(n, dtype=int)
+    for r in range(2):
+        _, pd = read_point_data(out[2] / "pv" / f"snapshot-{STEPS:08d}-r{r:04d}.vtu")
+        owned = pd["vtkGhostType"] == 0
+        np.testing.assert_array_equal(pd["coordination"][owned], z[pd["gid"][owned]])
+        seen[pd["gid"][owned]] += 1
+    assert np.all(seen == 1)
     data = read(out[2] / "contacts.h5", STEPS)
     F = data["normal_force"] + data["tangential_force"]
     g_f = np.zeros((n, 3))
     np.add.at(g_f, data["gid"][:, 0], F)
     np.add.at(g_f, data["gid"][:, 1], -F)
+    np.testing.assert_allclose(g_f, f, rtol=0, atol=1e-13 * np.abs(f).max())
+
+
+@pytest.mark.parametrize("rate", [(0.0, 0.0, 0.0), (-200.0, 100.0, 0.0)])
+def test_damped_law_written_parts_sum_to_the_applied_force(tmp_path, rate):
+    """A damped linear law at step 0 (``run(0)``: the forces of the current velocities, no half
+    step between): elastic plus dashpot parts, added to i and subtracted from j, are each grain's
+    force; with a deforming cell the dashpots see the affine motion across the boundary."""
+    import dataclasses
+    base = system()
+    s = dataclasses.replace(base, contacts=pardem.ContactModel(
+        "linear", {"kn": 2e4, "kt": 1.5e4, "friction": 0.3, "restitution": 0.4}),
+        cell=dataclasses.replace(base.cell, rate=rate))
+    sim = pardem.build(pardem.Communicator(), s)
+    path = tmp_path / "contacts.h5"
+    sim.run(0, operations=[ContactWriter(path, trigger=pardem.triggers.Never(), at_end=True)])
+    e = sim.elements
+    n = e.n_owned
+    f = np.zeros((n, 3))
+    f[e.gid[:n]] = e.f[:n]
+    data = read(path, 0)
+    dn, dt = data["normal_damping"], data["tangential_damping"]
+    d = data["branch"]
+    nrm = d / np.linalg.norm(d, axis=1)[:, None]
+    # the shares' directions: normal along n, tangential across it; both present
+    np.testing.assert_allclose(np.cross(dn, nrm), 0.0, atol=1e-14 * np.abs(f).max())
+    np.testing.assert_allclose(np.sum(dt * nrm, axis=1), 0.0, atol=1e-14 * np.abs(f).max())
+    assert np.abs(dn).max() > 1e-3 * np.abs(data["normal_force"]).max()
+    assert np.abs(dt).max() > 0.0
+    F = data["normal_force"] + data["tangential_force"] + dn + dt
+    g_f = np.zeros((n, 3))
+    np.add.at(g_f, data["gid"][:, 0], F)
+    np.add.at(g_f, data["gid"][:, 1], -F)
+    # ~10 pairs a grain, each a few terms' round-off of the largest force
     np.testing.assert_allclose(g_f, f, rtol=0, atol=1e-13 * np.abs(f).max())

@@ -29,7 +29,8 @@ HERE = os.path.dirname(__file__)
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 R = 0.5e-3
 YOUNG, RATIO = 2e8, 0.6
-POINT_NAMES = {"radius", "velocity", "displacement", "rank", "gid", "vtkGhostType"}
+POINT_NAMES = {"radius", "velocity", "displacement", "spin", "orientation", "force", "torque",
+               "coordination", "rank", "gid", "vtkGhostType"}
 CELL_NAMES = {"axial_force", "state", "plastic", "young"}
 
 
@@ -96,6 +97,36 @@ def check_pvtu(path):
         assert data_arrays(vtu.find("CellData")) == p_cell
         assert data_arrays(vtu.find("Points")) == {"Points": data_arrays(grid.find("PPoints"))[None]}
     return pieces
+
+
+_VTK_DTYPES = {"Float64": np.float64, "Float32": np.float32, "Int64": np.int64, "Int32": np.int32,
+               "UInt8": np.uint8}
+
+
+def read_point_data(path):
+    """``(points, {name: array})`` of a VTU piece written by meshio (binary, zlib, UInt32 header),
+    decoded here from the XML: meshio's reader fails on a piece with an empty cell block (a
+    granular piece has no bond lines)."""
+    import base64
+    import zlib
+    piece = ET.parse(path).getroot().find("UnstructuredGrid/Piece")
+
+    def decode(da):
+        text = da.text.strip()
+        n_blocks = int(np.frombuffer(base64.b64decode(text[:8])[:4], np.uint32)[0])
+        n_header = 4 * (3 + n_blocks)
+        chars = 4 * -(-n_header // 3)
+        sizes = np.frombuffer(base64.b64decode(text[:chars])[:n_header], np.uint32)[3:]
+        raw, data, at = b"", base64.b64decode(text[chars:]), 0
+        for size in sizes:
+            raw += zlib.decompress(data[at:at + int(size)])
+            at += int(size)
+        a = np.frombuffer(raw, _VTK_DTYPES[da.get("type")])
+        comps = int(da.get("NumberOfComponents", "1"))
+        return a.reshape(-1, comps) if comps > 1 else a
+
+    points = decode(piece.find("Points/DataArray"))
+    return points, {da.get("Name"): decode(da) for da in piece.find("PointData")}
 
 
 def read_pvd(path):
@@ -284,3 +315,64 @@ def test_two_ranks_make_one_consistent_series(tmp_path):
     _, lattice_pairs, _ = ordered_lattice([2 * run["radius"] * k] * 3, run["radius"])
     expected = set(map(tuple, np.sort(lattice_pairs, axis=1).tolist()))
     assert set(map(tuple, lines.tolist())) == expected and len(expected) == run["n_bonds"]
+
+
+# ---------------------------------------------------------------------------- granular content
+
+def test_granular_points_contacts_and_cell_match_the_state(tmp_path):
+    """A periodic frictional packing: the points carry the state's arrays by gid; coordination is
+    a brute-force count over all pairs (minimum image); the contact lines are the network the HDF5
+    contact writer writes; the cell is the box lo..hi."""
+    import h5py
+    sys.path.insert(0, os.path.join(HERE, "mpi"))
+    from contact_writer_run import system
+    import pardem
+    from pardem.io.contact_writer import ContactWriter, group_name
+    sim = pardem.build(pardem.Communicator(), system())
+    out = tmp_path / "pv"
+    sim.run(20, operations=[ParaViewWriter(out, sim.comm, 20),
+                            ContactWriter(tmp_path / "c.h5", trigger=20)])
+    e = sim.elements
+    n = e.n_owned
+    order = np.argsort(e.gid[:n])
+    points, pd = read_point_data(out / "snapshot-00000020-r0000.vtu")
+    got = np.argsort(pd["gid"])
+    assert np.array_equal(pd["gid"][got], np.arange(n))
+    for name, arr in (("velocity", e.v), ("spin", e.w), ("orientation", e.q), ("force", e.f),
+                      ("torque", e.t), ("radius", e.radius)):
+        np.testing.assert_array_equal(pd[name][got], arr[:n][order], err_msg=name)
+    np.testing.assert_array_equal(points[got], e.x[:n][order])
+    # coordination: brute force over all pairs, minimum image in the periodic box
+    x, r = e.x[:n][order], e.radius[:n][order]
+    box = sim.cell.length
+    i, j = np.triu_indices(n, 1)
+    dx = x[j] - x[i]
+    dx -= box * np.round(dx / box)
+    touch = np.linalg.norm(dx, axis=1) < r[i] + r[j]
+    z = np.bincount(i[touch], minlength=n) + np.bincount(j[touch], minlength=n)
+    assert z.mean() > 3
+    np.testing.assert_array_equal(pd["coordination"][got], z)
+    # the contact lines: the HDF5 writer's network, each line from x_i to x_i + branch
+    c = meshio.read(out / "contacts-00000020.vtu")
+    with h5py.File(tmp_path / "c.h5", "r") as fh:
+        ref = {k: v[()] for k, v in fh[group_name(20)].items()}
+    cd = {k: v[0] for k, v in c.cell_data.items()}
+    np.testing.assert_array_equal(np.stack([cd["gid_i"], cd["gid_j"]], 1), ref["gid"])
+    assert len(ref["gid"]) == touch.sum()
+    for k in ("normal_force", "tangential_force", "overlap", "sliding"):
+        np.testing.assert_array_equal(cd[k], ref[k], err_msg=k)
+    lines = c.cells_dict["line"]
+    np.testing.assert_array_equal(c.points[lines[:, 0]], x[ref["gid"][:, 0]])
+    np.testing.assert_allclose(c.points[lines[:, 1]] - c.points[lines[:, 0]], ref["branch"],
+                               rtol=0, atol=1e-18)   # x_i + d - x_i: one rounding of x ~ 1e-2 m
+    np.testing.assert_allclose(cd["force_magnitude"],
+                               np.linalg.norm(ref["normal_force"] + ref["tangential_force"], axis=1),
+                               rtol=1e-15)           # undamped law: the dashpot shares are zero
+    # the cell: a hexahedron spanning lo..hi
+    b = meshio.read(out / "cell-00000020.vtu")
+    assert list(b.cells_dict) == ["hexahedron"]
+    np.testing.assert_array_equal(b.points.min(0), sim.cell.lo)
+    np.testing.assert_allclose(b.points.max(0), sim.cell.lo + sim.cell.length, rtol=1e-15)
+    np.testing.assert_array_equal(b.cell_data["length"][0][0], sim.cell.length)
+    for pvd, f in (("contacts.pvd", "contacts-00000020.vtu"), ("cell.pvd", "cell-00000020.vtu")):
+        assert read_pvd(out / pvd) == [(pytest.approx(20 * sim.dt, rel=1e-12), f)]

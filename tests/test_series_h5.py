@@ -314,3 +314,29 @@ def test_other_columns_round_trip(tmp_path):
         assert f["count"].dtype == np.int64 and f["pressure"].dtype == np.float64
         assert f.attrs["description"] == "test series"
     assert SeriesCSV.__init__.__defaults__[0] == SERIES_COLUMNS
+
+
+def test_csv_header_carries_the_units(tmp_path):
+    """The CSV header names each column with the HDF5 series' unit (dimensionless columns bare),
+    and the readers key the columns by bare name."""
+    import csv as csv_module
+    from pardem.io.series import dict_row, read_series_rows
+    csv = SeriesCSV(tmp_path / "series.csv")
+    for s in synthetic_samples(3):
+        csv.append(s)
+    csv.close()
+    with open(tmp_path / "series.csv", newline="") as fh:
+        head = next(csv_module.reader(fh))
+    assert head == ["step", "time [s]", "plate_displacement [m]", "force_fixed [N]", "force_moving [N]",
+                    "eps_xx", "eps_yy", "eps_zz", "eps_xy", "eps_xz", "eps_yz",
+                    "bonds_broken", "bonds_broken_step", "bonds_yielded"]
+    assert [u for u in SERIES_UNITS if u != "1"] == ["s", "m", "N", "N"]
+    assert list(read_series(tmp_path / "series.csv", None)) == list(SERIES_COLUMNS)
+    cols, units = ("step", "stress_xx", "count"), ("1", "Pa", "1")
+    own = SeriesCSV(tmp_path / "own.csv", cols, dict_row(cols), units=units)
+    own.append({"step": 2, "stress_xx": 1.5, "count": 7})
+    own.close()
+    assert (tmp_path / "own.csv").read_text().splitlines() == ["step,stress_xx [Pa],count", "2,1.5,7"]
+    assert read_series_rows(tmp_path / "own.csv") == [{"step": "2", "stress_xx": "1.5", "count": "7"}]
+    with pytest.raises(ValueError, match="3 columns but 2 units"):
+        SeriesCSV(tmp_path / "bad.csv", cols, dict_row(cols), units=("1", "Pa"))

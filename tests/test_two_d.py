@@ -319,7 +319,8 @@ def test_save_load_and_paraview_in_2d(tmp_path):
     pv = ParaViewWriter(str(tmp_path / "pv"), sim.comm, 1)
     pv(sim)
     names = sorted(os.listdir(tmp_path / "pv"))
-    assert names == ["pardem.pvd", "snapshot-00000200-r0000.vtu", "snapshot-00000200.pvtu"]
+    assert names == ["cell-00000200.vtu", "cell.pvd", "contacts-00000200.vtu", "contacts.pvd",
+                     "pardem.pvd", "snapshot-00000200-r0000.vtu", "snapshot-00000200.pvtu"]
     # the piece's content (meshio cannot read back a piece without bonds: its reader fails on the
     # empty compressed line arrays, which VTK reads)
     mesh = piece_mesh(sim.elements, sim.bonds, 0)

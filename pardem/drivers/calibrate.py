@@ -188,7 +188,7 @@ def _run_outputs(comm, out, name, kind, vtk_every):
             os.makedirs(folder, exist_ok=True)
             if kind == "shear":
                 cols, units = shear_protocol.SERIES_COLUMNS, shear_protocol.SERIES_UNITS
-                csv = SeriesCSV(os.path.join(folder, f"{name}.csv"), cols, dict_row(cols))
+                csv = SeriesCSV(os.path.join(folder, f"{name}.csv"), cols, dict_row(cols), units=units)
                 h5 = SeriesH5(os.path.join(folder, f"{name}.h5"), columns=cols, units=units, row=dict_row(cols),
                               description=shear_protocol.SERIES_DESCRIPTION, int_columns=("step",))
             else:

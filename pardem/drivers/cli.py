@@ -321,6 +321,14 @@ def default_out(comm, driver, restart):
     return os.path.join("runs", f"{driver}-{stamp}")
 
 
+def restarted_run(restart):
+    """The output folder of the run checkpoint ``restart`` belongs to (the folder holding its
+    ``checkpoints/``), or None for a checkpoint kept elsewhere: a restart continues that run's
+    ParaView collections."""
+    parent = os.path.dirname(os.path.abspath(restart))
+    return os.path.dirname(parent) if os.path.basename(parent) == "checkpoints" else None
+
+
 def option_number(name, text, lo, hi, integer=False):
     """The number of a command-line option ``name`` (text) in [lo, hi]; DeckError naming the
     option and the range otherwise."""

@@ -37,7 +37,7 @@ from pardem.config import DeckError
 from pardem.drivers import cli
 from pardem.errors import DecompositionError, Interrupted, StepLimit
 from pardem.engine.simulation import FaultInjection
-from pardem.io import checkpoint
+from pardem.io import checkpoint, figures
 from pardem.io.checkpoint_writer import CheckpointWriter
 from pardem.io.paraview import ParaViewWriter
 from pardem.io.progress import Progress
@@ -143,8 +143,11 @@ class ProtocolDriver:
         vtk_every = deck["output"]["vtk_every"]
         if vtk_every:
             trigger, at_end = self.paraview_trigger(run, vtk_every)
+            # a restart's collections list the earlier run's snapshots up to the checkpoint
+            earlier = cli.restarted_run(args.restart) if args.restart else None
             pv = ParaViewWriter(os.path.join(run.out, "paraview"), comm, trigger, at_end=at_end,
-                                resume_step=sim.step_count if args.restart else None, dt=sim.dt)
+                                resume_step=sim.step_count if args.restart else None, dt=sim.dt,
+                                previous=None if earlier is None else os.path.join(earlier, "paraview"))
             run.operations.append(pv)
             if sim.step_count == 0:
                 pv(sim)    # the initial state
@@ -282,7 +285,10 @@ def run_protocol(comm, args, protocol):
                 summary[protocol.common_key] = {**common, **result.get(protocol.common_key, {})}
             write_json(os.path.join(run.out, protocol.summary_name), summary)
             if run.interrupted is None:
+                before = figures.png_times(run.out)
                 code = protocol.finish(run, summary)
+                if run.stopped is not None:   # a --steps stop: the figures it drew say so
+                    figures.stamp_figures(run.out, before, figures.truncation_note(summary))
         if run.interrupted is not None:
             # cli.run_driver prints the one line (with the checkpoint to restart from) and exits
             # 128 + the signal number

@@ -9,6 +9,31 @@ through E(0), E(90) with K fitted to the other angles and, for the ordered latti
 import numpy as np
 
 LAW_COLOURS = {"TOR": "C0", "hankinson": "C1", "linear": "C2", "spherical": "C3", "spherical_normalised": "C4"}
+# hollow markers of decreasing size and distinct dashes: curves that coincide stay visible
+LAW_STYLES = {"TOR": ("o", 9.0, "-"), "hankinson": ("s", 7.0, "--"), "linear": ("^", 5.5, "-."),
+              "spherical": ("D", 4.0, ":"), "spherical_normalised": ("v", 3.0, (0, (1, 3)))}
+COINCIDE_RTOL = 1e-9     # curves equal to this relative tolerance are named as coinciding
+
+
+def coinciding(curves, rtol=COINCIDE_RTOL):
+    """Groups (lists of names, in the given order) of the curves ``{name: (x, y)}`` that are the
+    same (equal x, y equal to ``rtol``, NaN = NaN), groups of one left out."""
+    groups = []
+    for name, (x, y) in curves.items():
+        for g in groups:
+            x0, y0 = curves[g[0]]
+            if (np.shape(x0) == np.shape(x) and np.array_equal(x0, x, equal_nan=True)
+                    and np.allclose(y0, y, rtol=rtol, atol=0.0, equal_nan=True)):
+                g.append(name)
+                break
+        else:
+            groups.append([name])
+    return [g for g in groups if len(g) > 1]
+
+
+def _style(law, k):
+    marker, size, dash = LAW_STYLES.get(law, ("o", max(3.0, 9.0 - 1.5 * k), "-"))
+    return dict(marker=marker, ms=size, mfc="none", mew=1.1, ls=dash)
 
 
 def _column(rows, key):
@@ -29,13 +54,21 @@ def plot_study(data, plan, path):
     for row, kind in zip(axes, kinds):
         for ax, name, bond_key in ((row[0], "LR", "bond_LR"), (row[1], "LT", "bond_LT")):
             top = 0.0
-            for law in plan.laws:
+            curves = {}
+            for k, law in enumerate(plan.laws):
                 rows = data[kind][law]
                 x = _column(rows, bond_key)
-                ax.errorbar(x, _column(rows, f"{name}_mean"), yerr=_column(rows, f"{name}_std"), marker="o",
-                            ms=3.5, lw=1.2, capsize=2, color=LAW_COLOURS.get(law), label=law)
+                y = _column(rows, f"{name}_mean")
+                curves[law] = (x, y)
+                ax.errorbar(x, y, yerr=_column(rows, f"{name}_std"), lw=1.2, capsize=2,
+                            color=LAW_COLOURS.get(law), label=law, **_style(law, k))
                 top = max(top, float(np.nanmax(x)))
             ax.plot([0, top], [0, top], color="0.5", ls=":", lw=1.0, label="domain = bond ratio")
+            same = coinciding(curves)
+            if same:
+                ax.text(0.02, 0.98, "\n".join(" = ".join(g) + ": the same curve" for g in same),
+                        transform=ax.transAxes, ha="left", va="top", fontsize="small",
+                        bbox=dict(facecolor="white", edgecolor="0.6", alpha=0.9))
             ax.set_xlabel(f"bond ratio $E_L/E_{name[1]}$ [-]")
             ax.set_ylabel(f"domain ratio $E_L^D/E_{name[1]}^D$ [-]")
             ax.set_title(f"{kind}: $E_L^D/E_{name[1]}^D$")

@@ -10,7 +10,8 @@
   (grains as points with ``radius``, ``gid``, ``cements_broken``, ``cements_intact``; the broken
   cements as lines with cell data ``break_strain``, -1 on the grains' vertex cells);
 * ``maps(path, field, title)``: the incremental shear strain and the grains' rotation increments of
-  a localisation window, drawn at the grains' centres, with the detected band's centre line;
+  a localisation window, each grain a disk of its own size (``grain_disks``), with the detected
+  band's centre line;
 * ``write_fields(path, field, gid, radius)``: the same fields as a VTK XML unstructured grid of points
   (``radius``, ``gid``, ``shear``, ``volumetric``, ``rotation``, ``spin``, ``platen``,
   ``cements_broken`` point data) for ParaView:
@@ -58,32 +59,49 @@ def curves(path, rows):
     return True
 
 
+def grain_disks(ax, x, diameter, values=None, cmap=None, vmin=None, vmax=None, **style):
+    """Add to ``ax`` one disk per grain at its size in data units: centres ``x`` [n, 2] and
+    ``diameter`` [n] in the axes' units (an ``EllipseCollection``, ``units="xy"``: the disks
+    scale with the axes, set an equal aspect), coloured by ``values`` [n] (or ``style``'s
+    ``facecolors``). Returns the collection (a mappable for ``colorbar``)."""
+    from matplotlib.collections import EllipseCollection
+    d = np.asarray(diameter, dtype=float)
+    disks = EllipseCollection(d, d, np.zeros(len(d)), units="xy", offsets=np.asarray(x, dtype=float),
+                              offset_transform=ax.transData, **style)
+    if values is not None:
+        disks.set_array(np.asarray(values, dtype=float))
+        disks.set_cmap(cmap)
+        disks.set_clim(vmin, vmax)
+    ax.add_collection(disks)
+    return disks
+
+
 def maps(path, field, radius, title=""):
-    """Incremental shear strain [-] and grain rotation increment [rad] of a window at the grains'
-    centres ``field["x"]`` [m] (drawn in mm, marker area ~ radius^2)."""
+    """Incremental shear strain [-] and grain rotation increment [rad] of a window, each grain a
+    disk of its radius ``radius`` [n] [m] at its centre ``field["x"]`` [m] (drawn in mm)."""
     plt = pyplot("biaxial figures")
     if plt is None:
         return False
     x = np.asarray(field["x"]) * 1e3
+    d = 2e3 * np.asarray(radius, dtype=float)
     fig, ax = plt.subplots(1, 2, figsize=(11, 5.5))
-    size = (np.asarray(radius) / np.max(radius)) ** 2 * 8.0
     shear = np.where(np.isfinite(field["shear"]), field["shear"], 0.0)
-    a = ax[0].scatter(x[:, 0], x[:, 1], c=shear, s=size, cmap="viridis", vmin=0.0,
-                      vmax=float(np.quantile(shear, 0.98)) or None)
+    a = grain_disks(ax[0], x, d, shear, "viridis", 0.0, float(np.quantile(shear, 0.98)) or None)
     fig.colorbar(a, ax=ax[0], label="incremental shear strain [-]")
     spin = np.asarray(field["spin"])
     lim = float(np.quantile(np.abs(spin), 0.98)) or 1e-12
-    b = ax[1].scatter(x[:, 0], x[:, 1], c=spin, s=size, cmap="coolwarm", vmin=-lim, vmax=lim)
+    b = grain_disks(ax[1], x, d, spin, "coolwarm", -lim, lim)
     fig.colorbar(b, ax=ax[1], label="grain rotation increment [rad] (counter-clockwise +)")
     band = field.get("band")
+    pad = float(d.max()) if len(d) else 0.0
     for axis in ax:
         if band is not None:
-            c, d = np.asarray(band["centre"]) * 1e3, np.asarray(band["direction"])
+            c, u = np.asarray(band["centre"]) * 1e3, np.asarray(band["direction"])
             span = np.ptp(x, axis=0).max()
-            axis.plot([c[0] - span * d[0], c[0] + span * d[0]], [c[1] - span * d[1], c[1] + span * d[1]],
+            axis.plot([c[0] - span * u[0], c[0] + span * u[0]], [c[1] - span * u[1], c[1] + span * u[1]],
                       "k--", lw=0.8)
-            axis.set_xlim(x[:, 0].min() - 0.2, x[:, 0].max() + 0.2)
-            axis.set_ylim(x[:, 1].min() - 0.2, x[:, 1].max() + 0.2)
+        axis.set_xlim(x[:, 0].min() - pad, x[:, 0].max() + pad)
+        axis.set_ylim(x[:, 1].min() - pad, x[:, 1].max() + pad)
         axis.set_aspect("equal")
         axis.set_xlabel("x [mm]")
         axis.set_ylabel("y [mm]")
@@ -93,7 +111,7 @@ def maps(path, field, radius, title=""):
         what = f"; band at {band['angle_deg']:.1f} deg, width {band['width_d']:.1f} d"
     else:
         what = f"; not localised (best line dashed, contrast {band['contrast']:.2f})"
-    fig.suptitle(title + what)
+    fig.suptitle(title + what + "\ngrains drawn at their size")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -124,13 +142,11 @@ def cement_map(path, x, radius, ends, strain, title="", band=None):
     plt = pyplot("biaxial figures")
     if plt is None:
         return False
-    from matplotlib.collections import EllipseCollection, LineCollection
+    from matplotlib.collections import LineCollection
     x = np.asarray(x, dtype=float) * 1e3
     d = 2e3 * np.asarray(radius, dtype=float)
     fig, ax = plt.subplots(figsize=(7, 7))
-    ax.add_collection(EllipseCollection(d, d, np.zeros(len(d)), units="xy", offsets=x,
-                                        offset_transform=ax.transData, facecolors="0.88", edgecolors="0.6",
-                                        linewidths=0.3))
+    grain_disks(ax, x, d, facecolors="0.88", edgecolors="0.6", linewidths=0.3)
     ends = np.asarray(ends, dtype=float).reshape(-1, 2, 2) * 1e3
     strain = 100.0 * np.asarray(strain, dtype=float)
     if len(ends):

@@ -7,6 +7,8 @@ import os
 
 import numpy as np
 
+from pardem.io.figures import banner, truncation_note
+
 from pardem.io.series import read_series
 from pardem.io.series_h5 import read_series_h5
 
@@ -99,4 +101,7 @@ def plot(series, summary, out):
     n_ranks = summary.get("n_ranks", "?")
     fig.suptitle(f"compression along {a}: measured E_{a} = {_mpa(summary.get('young_modulus'))} "
                  f"(quasi-static slope), {n_ranks} rank{'s' if n_ranks != 1 else ''}")
-    fig.savefig(out, dpi=110)
+    note = truncation_note(summary)
+    if note is not None:
+        banner(fig, note)
+    fig.savefig(out, dpi=110, **({"metadata": {"Description": note}} if note and str(out).endswith(".png") else {}))

@@ -3,6 +3,14 @@
 The default columns are compress's (``SERIES_COLUMNS``, rows from ``Reducer.sample`` dicts); other
 drivers pass their own ``columns`` and ``row`` (e.g. ``dict_row(columns)`` for samples that are
 dicts keyed by column).
+
+The header names each column with its unit, ``name [unit]`` (e.g. ``time [s]``, ``force_fixed
+[N]``), as the HDF5 series' ``units`` attributes; a dimensionless column (unit ``1``) or one written
+without units is its bare name. ``read_series`` and ``read_series_rows`` key the columns by bare
+name (``column_name``), so a reader need not know the units.
+
+A restarted driver rewrites its series files from the rows its checkpoint kept and then appends
+its own: the last run's files are the whole run's series, equal to an uninterrupted run's.
 """
 import csv
 
@@ -26,19 +34,39 @@ def dict_row(columns):
     return lambda s: [s[k] for k in columns]
 
 
+def header(columns, units=None):
+    """The CSV header of ``columns`` with ``units`` (one per column; None: none): ``name [unit]``,
+    the bare name for a dimensionless column (unit ``1`` or empty)."""
+    if units is None:
+        return list(columns)
+    if len(units) != len(columns):
+        raise ValueError(f"{len(columns)} columns but {len(units)} units")
+    return [c if u in ("1", "") else f"{c} [{u}]" for c, u in zip(columns, units)]
+
+
+def column_name(text):
+    """The bare column name of a header entry ``name [unit]`` (or ``name``)."""
+    return text.split(" [", 1)[0].strip()
+
+
 class SeriesCSV:
     """CSV file with a header line; ``append`` writes and flushes one row (so a crash keeps rows).
 
-    columns: the header; row: ``row(sample) -> values`` in the columns' order (default: compress's
-    columns of a ``Reducer.sample`` dict). Floats are written with ``repr`` (they read back exactly).
+    columns: the column names; row: ``row(sample) -> values`` in the columns' order (default:
+    compress's columns of a ``Reducer.sample`` dict); units: one per column for the header
+    (``header``; default compress's ``SERIES_UNITS`` with its default columns, else none). Floats
+    are written with ``repr`` (they read back exactly).
     """
 
-    def __init__(self, path, columns=SERIES_COLUMNS, row=sample_row):
+    def __init__(self, path, columns=SERIES_COLUMNS, row=sample_row, units=None):
         self.path = path
         self.columns, self.row = tuple(columns), row
+        if units is None and self.columns == SERIES_COLUMNS:
+            units = SERIES_UNITS
+        names = header(self.columns, units)
         self._fh = open(path, "w", newline="")
         self._w = csv.writer(self._fh)
-        self._w.writerow(self.columns)
+        self._w.writerow(names)
 
     def append(self, sample):
         self._w.writerow([repr(float(v)) if isinstance(v, float) else v for v in self.row(sample)])
@@ -48,11 +76,19 @@ class SeriesCSV:
         self._fh.close()
 
 
-def read_series(path, columns=SERIES_COLUMNS):
-    """Columns of a series CSV as a dict of float lists (for tests and post-processing);
-    ``columns=None``: every column of the file's header, in its order."""
+def read_series_rows(path):
+    """The rows of a series CSV as dicts ``{bare column name: text}`` (units dropped from the
+    header, values as written)."""
     with open(path, newline="") as fh:
-        reader = csv.DictReader(fh)
-        rows = list(reader)
-        names = reader.fieldnames if columns is None else columns
-    return {k: [float(r[k]) for r in rows] for k in names}
+        reader = csv.reader(fh)
+        names = [column_name(h) for h in next(reader)]
+        return [dict(zip(names, r)) for r in reader]
+
+
+def read_series(path, columns=SERIES_COLUMNS):
+    """Columns of a series CSV as a dict of float lists, keyed by bare name (for tests and
+    post-processing); ``columns=None``: every column of the file's header, in its order."""
+    with open(path, newline="") as fh:
+        names = [column_name(h) for h in next(csv.reader(fh))]
+    rows = read_series_rows(path)
+    return {k: [float(r[k]) for r in rows] for k in (names if columns is None else columns)}

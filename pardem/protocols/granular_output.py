@@ -155,7 +155,7 @@ class Series:
         self.paths = [os.path.join(out, f"{name}.csv"), os.path.join(out, f"{name}.h5")]
         if self.root:
             row = dict_row(self.columns)
-            self.csv = SeriesCSV(self.paths[0], self.columns, row)
+            self.csv = SeriesCSV(self.paths[0], self.columns, row, units=units)
             for r in self.rows:
                 self.csv.append(r)
             self.h5 = SeriesH5(self.paths[1], self.rows, self.columns, units, row, description,

@@ -1,7 +1,7 @@
 """Run under mpiexec: a periodic cluster of frictional grains with a ``ContactWriter``.
 
 Usage: ``mpiexec -n K python contact_writer_run.py OUTDIR``. Writes ``OUTDIR/contacts.h5`` (the
-writer, steps ``EVERY, 2 EVERY, ...``) and ``OUTDIR/state-rRRRR.npz`` (each rank: gid, contact
+writer, steps ``EVERY, 2 EVERY, ...``), ``OUTDIR/pv`` (ParaView at the same steps) and ``OUTDIR/state-rRRRR.npz`` (each rank: gid, contact
 force f [N] and torque t [N m] of its owned grains after the last step, the writer's last group).
 """
 import os
@@ -11,6 +11,7 @@ import numpy as np
 
 import pardem
 from pardem.io.contact_writer import ContactWriter
+from pardem.io.paraview import ParaViewWriter
 
 STEPS, EVERY = 40, 20
 
@@ -39,7 +40,8 @@ if __name__ == "__main__":
     out = sys.argv[1]
     comm = pardem.Communicator()
     sim = pardem.build(comm, system())
-    sim.run(STEPS, operations=[ContactWriter(os.path.join(out, "contacts.h5"), trigger=EVERY)])
+    sim.run(STEPS, operations=[ContactWriter(os.path.join(out, "contacts.h5"), trigger=EVERY),
+                               ParaViewWriter(os.path.join(out, "pv"), comm, EVERY)])
     e = sim.elements
     n = e.n_owned
     np.savez(os.path.join(out, f"state-r{comm.rank:04d}.npz"), gid=e.gid[:n], f=e.f[:n], t=e.t[:n])
