@@ -99,3 +99,186 @@ def test_tilted_list_refuses_a_cell_thinner_than_twice_the_reach():
     with pytest.raises(ValueError, match="axis x"):
         build_pairs(x, r, np.arange(2), 2, 2, 0.06, box_lo=np.zeros(3), box_hi=np.ones(3),
                     periodic=(True,) * 3, tilt=(0.5, 0.0, 0.0))
+
+
+# -- the engine: a simple cubic lattice sheared affinely ------------------------------------------
+
+import pardem  # noqa: E402
+from pardem.physics.contact_frame import pair_geometry  # noqa: E402
+
+R = 1e-3
+A = 2.0 * R * (1.0 - 0.01)        # lattice spacing: every neighbour overlaps by 1 % of a diameter
+KN = 1e5
+
+
+def lattice(m=4, friction=1.0, shear_rate=(0.0, 0.0, 0.0), dt=1e-6, velocities=None, density=2500.0):
+    g = (np.arange(m) + 0.5) * A
+    x = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+    system = pardem.System(
+        pardem.Particles(x, R, density, velocities=velocities),
+        contacts=pardem.ContactModel("linear", {"kn": KN, "kt": 0.5 * KN, "friction": friction}),
+        cell=pardem.Cell((0.0, 0.0, 0.0), (m * A,) * 3, (True, True, True), shear_rate=shear_rate),
+        integration=pardem.Integration(dt=dt),
+        decomposition=pardem.Decomposition(skin=0.1 * R))
+    return pardem.build(pardem.Communicator(), system), x
+
+
+def contacts_by_axis(sim):
+    """The branch vectors [n, 3] and histories [n, 3] of the touching pairs, with the axis of each
+    (0, 1, 2: the lattice direction of its branch vector)."""
+    c, e = sim.contacts, sim.elements
+    d, _, _, delta = pair_geometry(c.i, c.j, c.shift, e.x, e.radius)
+    touching = delta > 0.0
+    d, h = d[touching], c.history[touching, :3]
+    return d, h, np.argmax(np.abs(d) / np.linalg.norm(d, axis=1)[:, None] > 0.7, axis=1), delta[touching]
+
+
+def test_affine_shear_of_a_lattice_has_no_peculiar_motion_and_the_analytic_tangential_force():
+    """Every grain of a simple cubic lattice, at rest in the cell's frame, stays so under simple
+    shear xy (each is a translate of every other, across the periodic faces too): the contacts
+    along x and z see no affine motion (d_y = 0), those along y, a quarter of them across the y
+    faces where the image moves with the tilt, all the same sliding ``g a`` [m/s]: after a strain
+    gamma their tangential force is ``kt a gamma`` (to O(gamma): the normal turns by gamma) and the
+    shear stress ``sigma_yx = gamma (kt a - fn) / a^2`` (one y contact per grain, V = a^3). The
+    tangential forces turn every grain alike (the vorticity); a density of 2.5e7 kg/m^3 keeps that
+    spin's share of the sliding below 1e-3 of ``g a`` over the run (torque 2 R kt a gamma on
+    I = 0.4 m R^2)."""
+    g, dt, steps = 2000.0, 1e-8, 250          # gamma = 0.005
+    sim, _ = lattice(shear_rate=(g, 0.0, 0.0), dt=dt, density=2.5e7)
+    sim.run(steps)
+    gamma = g * dt * steps
+    assert sim.cell.shear_strain[0] == pytest.approx(gamma, rel=1e-12)
+    assert sim.cell.tilt[0] == pytest.approx(gamma * sim.cell.length[1], rel=1e-12)
+    # no peculiar velocity: the net force on every grain cancels to rounding (forces ~ kn 0.02 R =
+    # 2 N, rounding 1e-16 of it per step, against the affine scale g a = 4 m/s)
+    v = sim.particles.velocities
+    assert np.abs(v).max() < 1e-9 * g * A
+    w = sim.particles.angular_velocities
+    assert np.abs(w - w[0]).max() <= 1e-9 * np.abs(w[0]).max()      # every grain turns alike
+    d, h, axis, delta = contacts_by_axis(sim)
+    assert np.bincount(axis, minlength=3).tolist() == [64, 64, 64]
+    # x and z contacts: the same overlap (no affine motion along them), one tangential force each
+    # (from the common spin only)
+    assert np.allclose(delta[axis != 1], 0.02 * R, rtol=1e-9)
+    # (a pair is oriented by gid: across a face its i end is the upper one, its force the opposite)
+    h = h * np.sign(d[np.arange(len(d)), axis])[:, None]
+    for a in (0, 2):
+        ha = h[axis == a]
+        assert np.abs(ha - ha[0]).max() <= 1e-9 * np.abs(h).max()
+    # y contacts, inside the cell and across its y faces alike: the same history to rounding
+    hy = h[axis == 1]
+    across = d[axis == 1, 1] < 0.0
+    assert across.sum() == 16                 # the i end above: the pairs across the y faces
+    assert np.abs(hy - hy[0]).max() < 1e-9 * np.abs(hy[0]).max()
+    assert np.abs(h[axis != 1]).max() < 1e-2 * np.abs(hy[0]).max()
+    kt = 0.5 * KN
+    # |h| = kt a gamma to O(gamma) (the normal turns by gamma) and 1 / steps (the step-0 state's
+    # force evaluation increments the spring too): tolerance 2 gamma + 1 / steps
+    tol = 2 * gamma + 1.0 / steps
+    assert np.linalg.norm(hy[0]) == pytest.approx(kt * A * gamma, rel=tol)
+    assert hy[0][0] > 0.0                     # on the lower grain, along +x (the upper one moves +x)
+    sigma = sim.global_stress()
+    # one y contact per grain of volume a^3, its force on the lower grain (kt a gamma - fn gamma, 0)
+    # to O(gamma) (the normal force turned with the branch vector, fn = kn 0.02 R)
+    fn = KN * 0.02 * R
+    assert sigma[1, 0] == pytest.approx(gamma * (kt * A - fn) / A ** 2, rel=tol)
+
+
+def test_a_frictionless_lattice_sheared_through_flips_stays_affine():
+    """Frictionless, the lattice stays a translate of itself through strain 1.2 (two flips of the
+    tilt, list rebuilds and wraps): no peculiar velocity, positions the affine map of the start
+    modulo the cell's lattice, the x and z contacts as they were."""
+    g, dt, steps = 4000.0, 1e-6, 300          # gamma = 1.2: flips at 0.5 and 1.5 - 1 ...
+    sim, x0 = lattice(friction=0.0, shear_rate=(g, 0.0, 0.0), dt=dt)
+    sim.run(steps)
+    gamma = g * dt * steps
+    cell = sim.cell
+    assert cell.flips == 1
+    assert cell.tilt[0] == pytest.approx(gamma * cell.length[1] - cell.length[0], rel=1e-9)
+    assert abs(cell.tilt[0]) <= 0.5 * cell.length[0]
+    assert np.abs(sim.particles.velocities).max() < 1e-9 * g * A
+    x = sim.particles.positions
+    affine = x0.copy()
+    affine[:, 0] += gamma * x0[:, 1]          # lo = 0
+    frac = np.linalg.solve(cell.edges, (x - affine).T).T
+    assert np.abs(frac - np.round(frac)).max() < 1e-9
+    _, h, axis, delta = contacts_by_axis(sim)
+    assert np.abs(h).max() == 0.0            # frictionless: no tangential history
+    xz = axis != 1
+    assert xz.sum() == 128 and np.allclose(delta[xz], 0.02 * R, rtol=1e-9)
+
+
+def test_stress_is_symmetric_without_torques_in_a_tilted_flowing_packing():
+    """Frictionless grains (no contact torque) flowing in simple shear through flips: the
+    Love-Weber stress, with the tilted branch vectors, is symmetric to rounding."""
+    import _shear_case as sc
+    sim = pardem.build(pardem.Communicator(), sc.system(friction=0.0))
+    for _ in range(3):
+        sim.run(300)
+        s = sim.global_stress()
+        assert abs(s[0, 1] - s[1, 0]) < 1e-12 * np.abs(s).max()
+        assert abs(s[0, 1]) > 1e-3 * np.abs(s).max()     # a shear stress, not a zero
+    assert sim.cell.flips >= 2
+
+
+def test_restart_of_a_sheared_cell_is_bit_for_bit(tmp_path):
+    import _shear_case as sc
+    comm = pardem.Communicator()
+    ref = pardem.build(comm, sc.system())
+    ref.run(700)
+    sim = pardem.build(comm, sc.system())
+    sim.run(450)
+    assert sim.cell.flips >= 1 and abs(sim.cell.tilt[0]) > 0.0
+    pardem.save(sim, str(tmp_path / "s.h5"))
+    back = pardem.load(comm, str(tmp_path / "s.h5"))
+    assert back.cell.tilt.tolist() == sim.cell.tilt.tolist()
+    assert back.cell.shear_rate.tolist() == [2000.0, 0.0, 0.0]
+    back.run(250)
+    a, b = sc.state(ref), sc.state(back)
+    for k in a:
+        assert np.array_equal(a[k], b[k]), k
+    assert back.cell.flips == ref.cell.flips
+
+
+def test_shear_description_round_trips_and_bad_input():
+    import _shear_case as sc
+    from pardem.engine.system import System
+    s = sc.system(shear_rate=(100.0, 0.0, 0.0))
+    assert System.from_dict(s.to_dict()).cell.shear_rate == [100.0, 0.0, 0.0] or \
+        tuple(System.from_dict(s.to_dict()).cell.shear_rate) == (100.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match="periodic along x and y"):
+        PeriodicCell((0, 0, 0), (1, 1, 1), (True, False, True), shear_rate=(1.0, 0.0, 0.0))
+    with pytest.raises(ValueError, match="shear_rate"):
+        PeriodicCell((0, 0, 0), (1, 1, 1), (True,) * 3, shear_rate=(1.0, float("nan"), 0.0))
+    with pytest.raises(ValueError, match="half"):
+        PeriodicCell((0, 0, 0), (1, 1, 1), (True,) * 3, tilt=(0.6, 0.0, 0.0))
+    with pytest.raises(ValueError, match="slab_axis = 0"):
+        from pardem.engine.system import _slab_axis
+        _slab_axis(0, np.zeros((2, 3)), np.ones(2), 3,
+                   PeriodicCell((0, 0, 0), (1, 1, 1), (True,) * 3, shear_rate=(1.0, 0.0, 0.0)))
+
+
+@pytest.mark.mpi
+def test_one_and_two_ranks_give_the_same_bits(tmp_path):
+    """The sheared packing through flips on 1 and 2 ranks (slabs along y or z, never x: the xy
+    shear moves x with y; the ghosts across the y faces carry their raw positions, the list finds
+    their tilted image): the same bits (reproducible lists and exact sums)."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+    mpiexec = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
+    if mpiexec is None:
+        pytest.skip("no mpiexec")
+    script = os.path.join(os.path.dirname(os.path.abspath(__file__)), "mpi", "simple_shear_ranks.py")
+    got = {}
+    for n in (1, 2):
+        path = tmp_path / f"r{n}.npz"
+        p = subprocess.run([mpiexec, "-n", str(n), sys.executable, script, str(path)],
+                           capture_output=True, text=True, timeout=1200)
+        assert p.returncode == 0, p.stderr[-3000:]
+        got[n] = dict(np.load(path))
+    assert int(got[2]["axis"]) in (1, 2) and int(got[2]["flips"]) >= 2
+    for k in got[1]:
+        if k != "axis":
+            assert np.array_equal(got[1][k], got[2][k]), k
