@@ -252,6 +252,15 @@ def test_shear_description_round_trips_and_bad_input():
         PeriodicCell((0, 0, 0), (1, 1, 1), (True,) * 3, shear_rate=(1.0, float("nan"), 0.0))
     with pytest.raises(ValueError, match="half"):
         PeriodicCell((0, 0, 0), (1, 1, 1), (True,) * 3, tilt=(0.6, 0.0, 0.0))
+    # one process: the description's slab axis (a restart on more ranks cuts along it) is one the
+    # shear does not move, although x is the longest extent here
+    x, r, side = sc.packing(n=60)
+    x[:, 0] *= 1.5
+    sim = pardem.build(pardem.Communicator(), pardem.System(
+        pardem.Particles(x, r, 2500.0, allow_overlaps=True),
+        contacts=pardem.ContactModel("linear", {"kn": 1e5, "kt": 1e5}),
+        cell=pardem.Cell((0, 0, 0), (1.5 * side, side, side), (True,) * 3, shear_rate=(1.0, 0.0, 0.0))))
+    assert sim.system.decomposition.slab_axis in (1, 2)
     with pytest.raises(ValueError, match="slab_axis = 0"):
         from pardem.engine.system import _slab_axis
         _slab_axis(0, np.zeros((2, 3)), np.ones(2), 3,

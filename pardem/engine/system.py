@@ -332,7 +332,7 @@ def build(comm, system):
             contact_law(model.law)    # a known law, before any work
     _check_integration(integ)
     skin = _skin(dec, r)
-    slab_axis = _slab_axis(dec.slab_axis, x, r, dim, cell if comm.size > 1 else None)
+    slab_axis = _slab_axis(dec.slab_axis, x, r, dim, cell)
 
     gids = np.arange(n, dtype=np.int64)
     reach = 2.0 * float(r.max()) + skin
