@@ -291,3 +291,20 @@ def test_one_and_two_ranks_give_the_same_bits(tmp_path):
     for k in got[1]:
         if k != "axis":
             assert np.array_equal(got[1][k], got[2][k]), k
+
+
+def test_normal_servo_moves_its_axis_only():
+    """``g_a = gain (-sigma_aa - p0)`` capped at ``max_rate``: the cell opens along y when the
+    packing presses harder than p0, closes when it presses less; x and z keep their edges."""
+    servo = PeriodicCell.normal_servo(axis=1, pressure=1e5, gain=1e-4, max_rate=5.0)
+    cell = PeriodicCell((0, 0, 0), (1, 1, 1), (True,) * 3, servo=servo, shear_rate=(10.0, 0.0, 0.0))
+    cell.control(np.diag([-3e5, -1.2e5, -9e5]))
+    assert cell.rate.tolist() == [0.0, pytest.approx(1e-4 * 2e4), 0.0]
+    cell.control(np.diag([0.0, -0.2e5, 0.0]))
+    assert cell.rate.tolist() == [0.0, -5.0, 0.0]          # 1e-4 * -8e4 = -8, capped
+    back = PeriodicCell.from_state(cell.state())
+    assert back.servo == servo and back.shear_rate.tolist() == [10.0, 0.0, 0.0]
+    with pytest.raises(ValueError, match="normal-stress servo"):
+        PeriodicCell((0, 0, 0), (1, 1, 1), (True, False, True), servo=servo)
+    with pytest.raises(ValueError, match="axis"):
+        PeriodicCell.normal_servo(axis=3, pressure=1e5, gain=1e-4, max_rate=5.0)
