@@ -185,22 +185,28 @@ def test_affine_shear_of_a_lattice_has_no_peculiar_motion_and_the_analytic_tange
 
 
 def test_a_frictionless_lattice_sheared_through_flips_stays_affine():
-    """Frictionless, the lattice stays a translate of itself through strain 1.2 (two flips of the
-    tilt, list rebuilds and wraps): no peculiar velocity, positions the affine map of the start
+    """Frictionless, the lattice stays a translate of itself through strain 1.2 (a flip of the
+    tilt, list rebuilds and wraps), also while it drifts through the y faces at a uniform
+    peculiar velocity (Galilean invariance: every grain crosses a face, wrapped with the tilt's x
+    shift): no other peculiar velocity, positions relative to grain 0 the affine map of the start
     modulo the cell's lattice, the x and z contacts as they were."""
-    g, dt, steps = 4000.0, 1e-6, 300          # gamma = 1.2: flips at 0.5 and 1.5 - 1 ...
-    sim, x0 = lattice(friction=0.0, shear_rate=(g, 0.0, 0.0), dt=dt)
+    g, dt, steps, vy = 4000.0, 1e-6, 300, 10.0      # gamma = 1.2, drift 3 mm = 1.5 spacings along y
+    v0 = np.zeros((64, 3))
+    v0[:, 1] = vy
+    sim, x0 = lattice(friction=0.0, shear_rate=(g, 0.0, 0.0), dt=dt, velocities=v0)
     sim.run(steps)
     gamma = g * dt * steps
     cell = sim.cell
     assert cell.flips == 1
     assert cell.tilt[0] == pytest.approx(gamma * cell.length[1] - cell.length[0], rel=1e-9)
     assert abs(cell.tilt[0]) <= 0.5 * cell.length[0]
-    assert np.abs(sim.particles.velocities).max() < 1e-9 * g * A
+    assert np.abs(sim.particles.velocities - v0).max() < 1e-9 * g * A
     x = sim.particles.positions
-    affine = x0.copy()
-    affine[:, 0] += gamma * x0[:, 1]          # lo = 0
-    frac = np.linalg.solve(cell.edges, (x - affine).T).T
+    assert x[:, 1].min() < x0[:, 1].min()      # all drift up: the lowest were wrapped across the y faces
+    rel0 = x0 - x0[0]
+    affine = rel0.copy()
+    affine[:, 0] += gamma * rel0[:, 1]
+    frac = np.linalg.solve(cell.edges, ((x - x[0]) - affine).T).T
     assert np.abs(frac - np.round(frac)).max() < 1e-9
     _, h, axis, delta = contacts_by_axis(sim)
     assert np.abs(h).max() == 0.0            # frictionless: no tangential history
