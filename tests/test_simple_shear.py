@@ -314,3 +314,35 @@ def test_normal_servo_moves_its_axis_only():
         PeriodicCell((0, 0, 0), (1, 1, 1), (True, False, True), servo=servo)
     with pytest.raises(ValueError, match="axis"):
         PeriodicCell.normal_servo(axis=3, pressure=1e5, gain=1e-4, max_rate=5.0)
+
+
+def brute_touching(x, r, H):
+    """Pairs in contact over all images of the tilted cell (minimum image by fractional rounding,
+    then the 27 neighbours of it)."""
+    n = len(x)
+    i, j = np.triu_indices(n, 1)
+    d0 = x[j] - x[i]
+    base = -np.round(np.linalg.solve(H, d0.T).T)
+    best = np.full(len(i), np.inf)
+    for m in itertools.product((-1, 0, 1), repeat=3):
+        d = d0 + (base + np.array(m)) @ H.T
+        best = np.minimum(best, np.einsum("ij,ij->i", d, d))
+    return int(np.count_nonzero(best < (r[i] + r[j]) ** 2))
+
+
+def test_contacts_stay_complete_through_a_flip():
+    """Step by step across the first flip of the tilt (which relabels the images: the list must be
+    rebuilt at once), the contacts the kernels see are those of a brute-force search over all
+    images of the current cell."""
+    import _shear_case as sc
+    comm = pardem.Communicator()
+    sim = pardem.build(comm, sc.system(n=300))
+    sim.run(100)
+    _, r, _ = sc.packing(n=300)
+    checked = 0
+    while sim.cell.flips < 1 or checked < 5:
+        sim.run(1)
+        if sim.cell.flips >= 1:
+            checked += 1
+        assert float(sim.contacts.n_touching) == brute_touching(sim.particles.positions, r, sim.cell.edges)
+        assert sim.step_count < 400
