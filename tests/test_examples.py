@@ -210,3 +210,30 @@ def test_fracture_breaks_at_the_same_step_on_two_ranks(fracture_one_rank):
     # the clamped layer's force: a float sum over ranks, equal to round-off
     assert r2 == pytest.approx(r1, rel=1e-12)
     assert "PASS" in two.stdout
+
+
+def simple_shear_friction(out):
+    return number(r"steady friction mu " + FLOAT, out)
+
+
+def test_simple_shear_reaches_the_published_steady_friction():
+    res = run("simple_shear.py", "--quick")
+    assert res.returncode == 0, res.stdout + res.stderr
+    # the example's bounds (its docstring: quasi-static mu_s ~ 0.37 for grain friction 0.5,
+    # Chialvo, Sun and Sundaresan 2012; widened for 300 grains and 1.6 strain units)
+    assert 0.25 <= simple_shear_friction(res.stdout) <= 0.55
+    # the normal-stress servo holds sigma_yy at the target (1e5 Pa) within the flow's scatter
+    assert number(r"normal stress " + FLOAT, res.stdout) == pytest.approx(1e5, rel=0.1)
+    assert number(r"tilt flips " + FLOAT, res.stdout) >= 1
+    assert "PASS" in res.stdout
+
+
+@pytest.mark.mpi
+@pytest.mark.skipif(MPIEXEC is None, reason="no mpiexec")
+def test_simple_shear_gives_the_same_answer_on_two_ranks():
+    one = run("simple_shear.py", "--quick")
+    two = run("simple_shear.py", "--quick", ranks=2)
+    assert two.returncode == 0, two.stdout + two.stderr
+    assert "2 rank(s)" in two.stdout
+    # reproducible lists and exact sums: the same trajectory, so the same printed friction
+    assert simple_shear_friction(one.stdout) == simple_shear_friction(two.stdout)

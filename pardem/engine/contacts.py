@@ -76,10 +76,11 @@ def check_period(cell, reach):
     ``reach`` = 2 R_max + skin [m] (a grain would touch its own image twice). Checked with the
     global reach, the same on every rank (the list's own check uses this rank's largest radius:
     ranks could disagree and leave the others waiting)."""
-    short = cell.periodic & (cell.length < 2.0 * reach)
+    width = cell.widths   # the edges, or the face distances of a tilted cell
+    short = cell.periodic & (width < 2.0 * reach)
     if np.any(short):
         a = int(np.argmax(short))
-        raise ValueError(f"periodic axis {'xyz'[a]}: period {cell.length[a]:.6g} m is "
+        raise ValueError(f"periodic axis {'xyz'[a]}: period {width[a]:.6g} m is "
                          f"shorter than twice the contact reach 2 R_max + skin = {reach:.6g} m")
 
 
@@ -161,7 +162,8 @@ class Contacts:
         kw = {}
         if self.cell is not None:
             check_period(self.cell, self.cut)
-            kw = {"box_lo": self.cell.lo, "box_hi": self.cell.hi}
+            kw = {"box_lo": self.cell.lo, "box_hi": self.cell.hi,
+                  "tilt": self.cell.tilt if self.cell.tilted else None}
         self.vl.rebuild(e.x, e.radius, e.gid, e.n_owned, e.n_total, **kw)
         pairs, shifts = self.vl.pairs, self.vl.shifts
         keys = pair_keys(e.gid[pairs[:, 0]], e.gid[pairs[:, 1]])
@@ -242,7 +244,7 @@ class Contacts:
         if self.periodic:
             if self.cell.deforming:
                 self.shift = self.cell.shift_metres(self.shifts)
-            rate = self.cell.rate
+            rate = self.cell.gradient() if self.cell.sheared else self.cell.rate
         self.sums[:] = 0.0
         # exact sums when something may read them: a servo (every step), or an operation (the
         # steps with the energy, LAMMPS' eflag); the other steps keep the cheap register sums

@@ -29,6 +29,26 @@ and the Love-Weber stress ``sum d f / V`` is the stress per unit area of the pla
 The pressure of the servo is the in-plane mean stress ``p = -(s_xx + s_yy) / 2``, and the
 triaxial servo becomes biaxial (axis x or y imposed, the other in-plane axis servoed).
 
+Simple shear (docs/physics.md section 12; LAMMPS' triclinic box): the cell may also be tilted, its
+edge vectors the columns of the upper-triangular ``H = [[L_x, xy, xz], [0, L_y, yz], [0, 0, L_z]]``
+(``tilt = (xy, xz, yz)`` [m]), so that an image across y is shifted along x by ``xy`` (Lees-Edwards).
+``shear_rate = (g_xy, g_xz, g_yz)`` [1/s] are the off-diagonal entries ``dv_x/dy``, ``dv_x/dz``,
+``dv_y/dz`` of the velocity gradient ``Lv = diag(rate) + upper(shear_rate)``; every step maps
+``x <- lo + (1 + Lv dt)(x - lo)`` and ``H <- (1 + Lv dt) H``, and the contact kernels add the affine
+relative motion ``-Lv d`` (``contact_frame.shear_motion``). Velocities stay the fluctuations about
+the affine field, so a grain wrapped across y keeps its velocity (LAMMPS' ``remap v`` adds the
+streaming jump to total velocities instead). A tilt beyond half its edge is flipped by one edge
+(LAMMPS ``flip``: ``yz`` by ``L_y``, which moves ``xz`` by ``xy``, then ``xz`` and ``xy`` by
+``L_x``): the lattice of images is unchanged, its integer image labels are not, so a flip asks for
+a neighbour-list rebuild (``strain_since_build`` infinite until the rebuild resets it). A slab
+decomposition along x needs ``xy = xz = 0`` (and no x shear rate), along y ``yz = 0``
+(``slab_axis_allowed``); the ghosts need no image shift of their own, since the neighbour list
+finds the image of every row through ``H``.
+
+Normal-stress servo (``normal_servo``, with simple shear): axis ``a`` servoes its normal stress to
+``-pressure`` (``g_a = gain (-sigma_aa - pressure)`` capped by ``max_rate``), the other axes keep
+their edges.
+
 The cell is pure bookkeeping over arrays; the reductions it needs (the global stress) are done by
 the caller.
 """
@@ -57,6 +77,50 @@ def _wrap(x, n, lo, length, periodic):
                     x[k, d] -= m * length[d]
 
 
+@njit(cache=True, error_model="numpy")
+def _shear_map(x, n, lo, factor, sxy, sxz, syz):
+    """``x <- lo + (1 + Lv dt)(x - lo)`` with ``Lv dt`` upper triangular: diagonal ``factor - 1``,
+    off-diagonal ``sxy, sxz, syz`` (the step's shear strains); axes that do not move are left
+    untouched (no rounding)."""
+    move1 = factor[1] != 1.0 or syz != 0.0
+    for k in range(n):
+        r1 = x[k, 1] - lo[1]
+        r2 = x[k, 2] - lo[2]
+        x[k, 0] = lo[0] + ((x[k, 0] - lo[0]) * factor[0] + (sxy * r1 + sxz * r2))
+        if move1:
+            x[k, 1] = lo[1] + (r1 * factor[1] + syz * r2)
+        if factor[2] != 1.0:
+            x[k, 2] = lo[2] + r2 * factor[2]
+
+
+@njit(cache=True, error_model="numpy")
+def _wrap_tilted(x, n, lo, length, tilt, periodic):
+    """``_wrap`` in a tilted cell: the fractional coordinates ``H^-1 (x - lo)`` into [0, 1), z first
+    (H is upper triangular: an image along z moves x and y too, one along y moves x)."""
+    for k in range(n):
+        if periodic[2]:
+            m = np.floor((x[k, 2] - lo[2]) / length[2])
+            if m != 0.0:
+                x[k, 2] -= m * length[2]
+                x[k, 1] -= m * tilt[2]
+                x[k, 0] -= m * tilt[1]
+        if periodic[1]:
+            m = np.floor(((x[k, 1] - lo[1]) - tilt[2] * ((x[k, 2] - lo[2]) / length[2])) / length[1])
+            if m != 0.0:
+                x[k, 1] -= m * length[1]
+                x[k, 0] -= m * tilt[0]
+        if periodic[0]:
+            s2 = (x[k, 2] - lo[2]) / length[2] if periodic[2] else 0.0
+            s1 = ((x[k, 1] - lo[1]) - tilt[2] * s2) / length[1] if periodic[1] else 0.0
+            m = np.floor(((x[k, 0] - lo[0]) - tilt[0] * s1 - tilt[1] * s2) / length[0])
+            if m != 0.0:
+                x[k, 0] -= m * length[0]
+
+
+# which two axes each tilt (xy, xz, yz) couples: (the shifted axis, the axis crossed)
+TILT_AXES = ((0, 1), (0, 2), (1, 2))
+
+
 def _flags(name, value):
     """Three booleans (bools, or the integers 0 and 1) as a bool array [3], or ValueError naming
     ``name`` (``bool("no")`` would be True: strings are refused)."""
@@ -76,10 +140,13 @@ class PeriodicCell:
     ``(p0 [Pa], gain [1/(Pa s)], max_rate [1/s])`` for an isotropic pressure control, or the dict of
     ``triaxial_servo`` (axial rate imposed, lateral stresses held at ``-pc``).
     ``dimension``: 3, or 2 for the 2D mode (module docstring: z not periodic, ``length[2]`` the
-    thickness of the stress convention).
+    thickness of the stress convention). ``shear_rate`` [3] [1/s]: ``(dv_x/dy, dv_x/dz, dv_y/dz)``
+    of simple shear; ``tilt`` [3] [m]: ``(xy, xz, yz)`` of the tilted cell, each within half its
+    edge (module docstring); both need the two axes they couple periodic.
     """
 
-    def __init__(self, lo, length, periodic, rate=(0.0, 0.0, 0.0), servo=None, dimension=3):
+    def __init__(self, lo, length, periodic, rate=(0.0, 0.0, 0.0), servo=None, dimension=3,
+                 shear_rate=(0.0, 0.0, 0.0), tilt=(0.0, 0.0, 0.0)):
         self.lo = vector3("cell.lo", lo, "[m] (the box's lower corner)").copy()
         self.length = vector3("cell.length", length, "[m]").copy()
         self.periodic = _flags("cell.periodic", periodic)
@@ -94,8 +161,23 @@ class PeriodicCell:
         if not np.all(self.length > 0.0):
             raise ValueError(f"cell.length must be positive along every axis, got {list(self.length)}: "
                              f"expected 3 finite edges in (0, inf) [m]")
+        self.shear_rate = vector3("cell.shear_rate", shear_rate, "[1/s] (dv_x/dy, dv_x/dz, dv_y/dz)").copy()
+        self.tilt = vector3("cell.tilt", tilt, "[m] (xy, xz, yz)").copy()
+        for c, (a, b) in enumerate(TILT_AXES):
+            name = ("xy", "xz", "yz")[c]
+            if (self.shear_rate[c] != 0.0 or self.tilt[c] != 0.0) and not (self.periodic[a] and self.periodic[b]):
+                raise ValueError(f"cell.shear_rate / cell.tilt {name}: simple shear {name} needs a cell periodic "
+                                 f"along {'xyz'[a]} and {'xyz'[b]}")
+            if not abs(self.tilt[c]) <= 0.5 * self.length[a] * (1.0 + 1e-12):
+                raise ValueError(f"cell.tilt {name} = {self.tilt[c]!r} m: expected |{name}| <= half the "
+                                 f"{'xyz'[a]} edge, {0.5 * self.length[a]:.6g} m (a tilt flips beyond it)")
         if servo is None:
             self.servo = None
+        elif isinstance(servo, dict) and servo.get("kind") == "normal":
+            self.servo = self.normal_servo(**{k: v for k, v in servo.items() if k != "kind"})
+            if not self.periodic[self.servo["axis"]] or self.servo["axis"] >= self.dimension:
+                raise ValueError(f"a normal-stress servo needs a periodic in-plane axis, got axis "
+                                 f"{self.servo['axis']}")
         elif isinstance(servo, dict):
             if not all(isinstance(k, str) for k in servo):
                 raise ValueError(f"cell.servo = {short(servo)}: a triaxial servo's keys are names (strings)")
@@ -119,6 +201,8 @@ class PeriodicCell:
         self.servo_stiffness = 0.0   # S [Pa] of the isotropic servo's gain cap (0: no cap)
         self.strain = np.zeros(3)   # accumulated log strain of the edges since the start
         self.strain_since_build = 0.0   # largest |strain| increment since the last list build
+        self.shear_strain = np.zeros(3)   # accumulated engineering shear strains (xy, xz, yz) since the start
+        self.flips = 0                    # tilt flips since the start
 
     @property
     def hi(self):
@@ -149,7 +233,43 @@ class PeriodicCell:
 
     @property
     def deforming(self):
-        return self.servo is not None or any_rate(self.rate)
+        return self.servo is not None or any_rate(self.rate) or self.sheared
+
+    @property
+    def sheared(self):
+        """Whether the cell shears (a non-zero ``shear_rate``)."""
+        return any_rate(self.shear_rate)
+
+    @property
+    def tilted(self):
+        """Whether the cell is tilted (a non-zero ``tilt``)."""
+        return any_rate(self.tilt)
+
+    @property
+    def edges(self):
+        """The edge vectors as the columns of ``H`` [3, 3] [m] (upper triangular)."""
+        xy, xz, yz = self.tilt
+        L = self.length
+        return np.array([[L[0], xy, xz], [0.0, L[1], yz], [0.0, 0.0, L[2]]])
+
+    @property
+    def widths(self):
+        """Distances between opposite faces [3] [m] (the edges when the cell is not tilted): the
+        periods a neighbour search and a contact reach must respect."""
+        if not self.tilted:
+            return self.length.copy()
+        return 1.0 / np.linalg.norm(np.linalg.inv(self.edges), axis=1)
+
+    def gradient(self):
+        """The velocity gradient as ``(g_x, g_y, g_z, g_xy, g_xz, g_yz)`` [6] [1/s] (the contact
+        kernels' ``rate`` of a shearing cell)."""
+        return np.concatenate([self.rate, self.shear_rate])
+
+    def slab_axis_allowed(self, axis):
+        """Whether slabs cut along ``axis`` stay slabs of the cell: no tilt or shear moves that
+        coordinate with another one (x: ``xy = xz = 0``; y: ``yz = 0``; z always)."""
+        coupled = [c for c, (a, _) in enumerate(TILT_AXES) if a == axis]
+        return all(self.tilt[c] == 0.0 and self.shear_rate[c] == 0.0 for c in coupled)
 
     def deform(self, elements, dt, references=()):
         """Map the owned rows and the ``references`` position arrays affinely over one step;
@@ -157,22 +277,75 @@ class PeriodicCell:
         if not self.deforming:
             return None
         factor = 1.0 + self.rate * dt
+        if self.sheared:
+            return self._shear(elements, dt, references, factor)
         _affine_map(elements.x, elements.n_owned, self.lo, factor)
         for ref in references:
             if ref is not None:
                 _affine_map(ref, ref.shape[0], self.lo, factor)
+        if self.tilted:   # H <- diag(factor) H
+            self.tilt *= factor[[0, 0, 1]]
         self.length *= factor
         self.strain += np.log(factor)
         self.strain_since_build += float(np.max(np.abs(np.log(factor))))
         return factor
 
+    def _shear(self, elements, dt, references, factor):
+        """``deform`` with a shear rate: ``x <- lo + (1 + Lv dt)(x - lo)``, ``H <- (1 + Lv dt) H``,
+        then the flips (module docstring)."""
+        sxy, sxz, syz = (float(g) * dt for g in self.shear_rate)
+        _shear_map(elements.x, elements.n_owned, self.lo, factor, sxy, sxz, syz)
+        for ref in references:
+            if ref is not None:
+                _shear_map(ref, ref.shape[0], self.lo, factor, sxy, sxz, syz)
+        L = self.length
+        xy, xz, yz = self.tilt
+        self.tilt = np.array([factor[0] * xy + sxy * L[1], factor[0] * xz + (sxy * yz + sxz * L[2]),
+                              factor[1] * yz + syz * L[2]])
+        self.length *= factor
+        self.strain += np.log(factor)
+        self.shear_strain += (sxy, sxz, syz)
+        # |(1 + Lv dt) d - d| <= (max |factor - 1| + |shear part|_F) |d|: the pair distances' change
+        self.strain_since_build += float(np.max(np.abs(np.log(factor)))) + float(np.sqrt(sxy * sxy + sxz * sxz
+                                                                                      + syz * syz))
+        self._flip()
+        return factor
+
+    def _flip(self):
+        """LAMMPS' flip: a tilt beyond half its edge moves by one edge (yz first, which moves xz
+        by xy); the rows keep their positions, the list must be rebuilt (its image labels)."""
+        L, t = self.length, self.tilt
+        flipped = False
+        if abs(t[2]) > 0.5 * L[1]:
+            s = np.sign(t[2])
+            t[2] -= s * L[1]
+            t[1] -= s * t[0]
+            flipped = True
+        for c in (1, 0):
+            if abs(t[c]) > 0.5 * L[0]:
+                t[c] -= np.sign(t[c]) * L[0]
+                flipped = True
+        if flipped:
+            self.flips += 1
+            self.strain_since_build = np.inf
+
     def wrap(self, elements):
-        """Bring the owned rows into ``[lo, lo + L)`` along the periodic axes (at list rebuilds)."""
+        """Bring the owned rows into ``[lo, lo + L)`` along the periodic axes (at list rebuilds);
+        in a tilted cell, their fractional coordinates into [0, 1)."""
+        if self.tilted:
+            _wrap_tilted(elements.x, elements.n_owned, self.lo, self.length, self.tilt, self.periodic)
+            return
         _wrap(elements.x, elements.n_owned, self.lo, self.length, self.periodic)
 
     def shift_metres(self, shifts):
-        """Image shifts of a pair list [n, 3] int8 in metres for the current edges."""
-        return shifts * np.where(self.periodic, self.length, 0.0)
+        """Image shifts of a pair list [n, 3] int8 in metres for the current edges: ``H @ shifts``
+        (grouped as the neighbour search: ``(n_x L_x + n_y xy) + n_z xz``, ``n_y L_y + n_z yz``)."""
+        s = shifts * np.where(self.periodic, self.length, 0.0)
+        if self.tilted:
+            xy, xz, yz = self.tilt
+            s[:, 0] = (s[:, 0] + shifts[:, 1] * xy) + shifts[:, 2] * xz
+            s[:, 1] = s[:, 1] + shifts[:, 2] * yz
+        return s
 
     @staticmethod
     @keywords("PeriodicCell.triaxial_servo")
@@ -191,10 +364,32 @@ class PeriodicCell:
         return {"kind": "triaxial", "axis": axis, "axial_rate": float(axial_rate),
                 "pressure": float(pressure), "gain": float(gain), "max_rate": float(max_rate)}
 
+    @staticmethod
+    @keywords("PeriodicCell.normal_servo")
+    def normal_servo(axis, pressure, gain, max_rate):
+        """The ``servo`` of simple shear at constant normal stress: ``axis`` (0, 1, 2) holds its
+        normal stress at ``-pressure`` [Pa] (compression positive) with ``gain`` [1/(Pa s)],
+        ``|rate| <= max_rate`` [1/s]; the other edges stay."""
+        if not is_real(axis) or isinstance(axis, (bool, np.bool_)) or axis not in (0, 1, 2):
+            raise ValueError(f"normal servo: axis = {short(axis)}: expected 0, 1 or 2")
+        real("normal servo: pressure", pressure, lo=0.0, lo_open=False, unit="[Pa]")
+        real("normal servo: gain", gain, lo=0.0, unit="[1/(Pa s)]")
+        real("normal servo: max_rate", max_rate, lo=0.0, unit="[1/s]")
+        return {"kind": "normal", "axis": int(axis), "pressure": float(pressure), "gain": float(gain),
+                "max_rate": float(max_rate)}
+
     def control(self, stress, dt=0.0):
         """Servo update of ``rate`` from the global stress tensor [3, 3] [Pa] (tension positive);
         ``dt`` [s] the step the rate will act over (for the isotropic servo's gain cap)."""
         if self.servo is None:
+            return
+        if isinstance(self.servo, dict) and self.servo["kind"] == "normal":
+            sv = self.servo
+            a = sv["axis"]
+            g = sv["gain"] * (-float(stress[a][a]) - sv["pressure"])
+            rate = np.zeros(3)
+            rate[a] = min(max(g, -sv["max_rate"]), sv["max_rate"])
+            self.rate = rate
             return
         if isinstance(self.servo, dict):
             sv = self.servo
@@ -221,12 +416,17 @@ class PeriodicCell:
                 "servo": (None if self.servo is None else dict(self.servo)
                           if isinstance(self.servo, dict) else list(self.servo)),
                 "strain": self.strain.tolist(), "strain_since_build": self.strain_since_build,
-                "servo_stiffness": self.servo_stiffness, "dimension": self.dimension}
+                "servo_stiffness": self.servo_stiffness, "dimension": self.dimension,
+                "shear_rate": self.shear_rate.tolist(), "tilt": self.tilt.tolist(),
+                "shear_strain": self.shear_strain.tolist(), "flips": self.flips}
 
     @classmethod
     def from_state(cls, s):
         cell = cls(s["lo"], s["length"], s["periodic"], s["rate"], s["servo"],
-                   dimension=int(s.get("dimension", 3)))
+                   dimension=int(s.get("dimension", 3)), shear_rate=s.get("shear_rate", (0.0, 0.0, 0.0)),
+                   tilt=s.get("tilt", (0.0, 0.0, 0.0)))
+        cell.shear_strain = np.asarray(s.get("shear_strain", (0.0, 0.0, 0.0)), dtype=np.float64)
+        cell.flips = int(s.get("flips", 0))
         cell.strain = np.asarray(s["strain"], dtype=np.float64)
         cell.strain_since_build = float(s["strain_since_build"])
         cell.servo_stiffness = float(s.get("servo_stiffness", 0.0))

@@ -122,9 +122,13 @@ class WallModel:
 class Cell:
     """A box ``lo`` [3] [m] with edges ``length`` [3] [m], periodic along ``periodic`` [3]; a
     diagonal strain ``rate`` [3] [1/s] or a pressure ``servo`` (``(p0 [Pa], gain [1/(Pa s)],
-    max_rate [1/s])`` or the dict of ``PeriodicCell.triaxial_servo``). In 2D the z edge is the
-    thickness of the stress convention (``thickness`` [m], default the mean diameter).
-    ``state``: the full state of a running cell (``PeriodicCell.state``), set by ``describe``."""
+    max_rate [1/s])`` or the dict of ``PeriodicCell.triaxial_servo`` or ``normal_servo``). In 2D the
+    z edge is the thickness of the stress convention (``thickness`` [m], default the mean diameter).
+    ``shear_rate`` [3] [1/s]: simple shear, the off-diagonal velocity gradient ``(dv_x/dy, dv_x/dz,
+    dv_y/dz)`` (the cell tilts, LAMMPS' triclinic box; docs/physics.md section 12; the cell starts
+    rectangular); slabs are then cut along an axis the shear does not move (y or z for xy).
+    ``state``: the full state of a running cell (``PeriodicCell.state``, with its tilt), set by
+    ``describe``."""
     lo: object = (0.0, 0.0, 0.0)
     length: object = (1.0, 1.0, 1.0)
     periodic: object = (True, True, True)
@@ -132,6 +136,7 @@ class Cell:
     servo: object = None
     thickness: object = None
     state: dict = None
+    shear_rate: object = (0.0, 0.0, 0.0)
 
 
 @dataclass
@@ -295,6 +300,9 @@ def build(comm, system):
         # slabs are cut in the cell's frame
         lo0, edge = cell.lo, cell.length
         x = np.where(cell.periodic, lo0 + np.mod(x - lo0, edge), x)
+        if cell.tilted:
+            raise ValueError("System.cell: a tilted cell is restored from its state only (Cell.state, "
+                             "restart.load); a new cell starts rectangular, Cell.shear_rate tilts it")
     pairs, material, frame = _bond_model(system.bonds, n)
     # coincident centres, or unbonded spheres overlapping by more than half the smaller radius
     # (minimum images in a periodic cell), are refused before any work
@@ -324,7 +332,7 @@ def build(comm, system):
             contact_law(model.law)    # a known law, before any work
     _check_integration(integ)
     skin = _skin(dec, r)
-    slab_axis = _slab_axis(dec.slab_axis, x, r, dim)
+    slab_axis = _slab_axis(dec.slab_axis, x, r, dim, cell)
 
     gids = np.arange(n, dtype=np.int64)
     reach = 2.0 * float(r.max()) + skin
@@ -453,7 +461,7 @@ def _cell(cell, radii, dim):
             raise ValueError(f"Cell.rate must be 3 rates [1/s] with rate[2] = 0 in 2D, got {rate.tolist()}")
     else:
         lo, length, per, rate = cell.lo, cell.length, cell.periodic, cell.rate
-    return PeriodicCell(lo, length, per, rate, cell.servo, dimension=dim)
+    return PeriodicCell(lo, length, per, rate, cell.servo, dimension=dim, shear_rate=cell.shear_rate)
 
 
 def plane_cell(box_lo, box_length, periodic, radii, thickness=None):
@@ -503,12 +511,20 @@ def _check_integration(integ):
         raise ValueError(f"Integration.orientation must be True or False, got {integ.orientation!r}")
 
 
-def _slab_axis(axis, x, r, dim):
+def _slab_axis(axis, x, r, dim, cell=None):
+    """The slab axis of ``Decomposition.slab_axis``; with a shearing ``cell``, one its shear does
+    not move (``PeriodicCell.slab_axis_allowed``)."""
+    allowed = [True] * 3 if cell is None else [cell.slab_axis_allowed(a) for a in range(3)]
     if isinstance(axis, str) and axis == "auto":
         extent = np.ptp(x, axis=0) + 2.0 * float(r.mean())
         if dim == 2:
             extent[2] = 0.0
+        extent = np.where(allowed, extent, -1.0)
         return choose_axis(extent)
+    if axis in (0, 1, 2) and not isinstance(axis, bool) and not allowed[axis]:
+        raise ValueError(f"Decomposition.slab_axis = {axis}: the cell's shear moves the "
+                         f"{'xyz'[axis]} coordinates with another axis; expected an axis it does not "
+                         f"move: {', '.join(str(a) for a in range(3) if allowed[a])} or 'auto'")
     allowed = (0, 1) if dim == 2 else (0, 1, 2)
     if isinstance(axis, bool) or axis not in allowed:
         raise ValueError(f"Decomposition.slab_axis = {axis!r}: expected "

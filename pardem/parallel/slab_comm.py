@@ -153,6 +153,7 @@ class SlabComm:
         self.balance_by = balance_by
         r, P = comm.rank, comm.size
         self.cell = cell
+        self._check_shear()
         self.periodic = cell is not None and bool(cell.periodic[slabs.axis]) and P > 1
         if self.periodic:
             self.left, self.right = (r - 1) % P, (r + 1) % P
@@ -258,9 +259,22 @@ class SlabComm:
             r.wait()
         return got
 
+    def _check_shear(self):
+        """ValueError when the cell's shear or tilt moves the slab coordinate with another axis (x
+        with y under xy shear): the ghosts, selected by that coordinate alone, could miss a
+        tilted image (``PeriodicCell.slab_axis_allowed``)."""
+        c = self.cell
+        if c is not None and self.comm.size > 1 and (c.sheared or c.tilted) \
+                and not c.slab_axis_allowed(self.slabs.axis):
+            raise ValueError(f"slab axis {self.slabs.axis}: the cell's shear moves the "
+                             f"{'xyz'[self.slabs.axis]} coordinates with another axis; cut the slabs "
+                             "along an axis it does not move (y or z for xy shear)")
+
     def follow_cell(self, factor):
         """Map the slab cuts with the cell's affine step (``factor`` [3]), so that the slabs keep
         their elements and relative widths while the cell deforms (the same on every rank)."""
+        if self.cell is not None and self.cell.sheared:
+            self._check_shear()
         a = self.slabs.axis
         if self.cell is not None and factor[a] != 1.0:
             lo = self.cell.lo[a]

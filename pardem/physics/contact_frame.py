@@ -113,6 +113,20 @@ def affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1, n2, g0, g1, g2):
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def shear_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1, n2, g0, g1, g2, gxy, gxz, gyz):
+    """``affine_motion`` in a shearing cell: the velocity gradient ``Lv`` is upper triangular,
+    diagonal ``g`` [1/s] and off-diagonal ``(gxy, gxz, gyz)`` = ``(dv_x/dy, dv_x/dz, dv_y/dz)``
+    [1/s]; the extra relative velocity of the contact point of i is ``-Lv d`` (an image across y
+    moves with the cell at ``gxy L_y`` along x: Lees-Edwards). Returns the corrected
+    ``(un, ut0, ut1, ut2)``."""
+    a0 = -(g0 * d0 + (gxy * d1 + gxz * d2))
+    a1 = -(g1 * d1 + gyz * d2)
+    a2 = -g2 * d2
+    an = a0 * n0 + a1 * n1 + a2 * n2
+    return un + an, ut0 + a0 - an * n0, ut1 + a1 - an * n1, ut2 + a2 - an * n2
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def add_love_weber(acc, a00, a01, a02, a10, a11, a12, a20, a21, a22, count):
     """Add one loop's Love-Weber sums ``a_ab = sum d_a F_i,b`` and its contact count to ``acc`` [10].
 

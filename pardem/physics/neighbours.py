@@ -29,6 +29,13 @@ Conventions
   element could then reach two images of the same neighbour, which one shift cannot describe.
   Periods of one or two cells are handled (the stencil visits the same cell under different
   shifts; at most one image passes the distance test).
+* A tilted (triclinic) cell, ``tilt = (xy, xz, yz)`` [m] (LAMMPS' convention, edge vectors the
+  columns of ``H = [[L_x, xy, xz], [0, L_y, yz], [0, 0, L_z]]``): the image of j is at
+  ``x_j + H shifts``, so the branch vector is ``(x[j] - x[i]) + ((s_x L_x + s_y xy) + s_z xz,
+  s_y L_y + s_z yz, s_z L_z)``; rows are binned by their fractional coordinates ``H^-1 (x - lo)``
+  with as many cells per axis as the distance between opposite faces holds (LAMMPS bins in
+  lamda coordinates alike), which must be ``>= 2 (2 R_max + skin)``. A zero tilt gives the
+  rectangular cell's bits (each added product is a signed zero).
 
 Algorithm
 ---------
@@ -125,6 +132,43 @@ def _bin_rows(x, n_total, lo, inv_h, nc, period, periodic, cell_of, image):
 
 
 @njit(cache=True, error_model="numpy")
+def _bin_rows_tilted(x, n_total, lo, inv_h, nc, period, periodic, tilt, cell_of, image):
+    """``_bin_rows`` in a tilted cell: fractional coordinates ``s = H^-1 (x - lo)`` along the periodic
+    axes (z first: H is upper triangular), each image the floor of ``s`` and the cell that of the
+    wrapped ``s`` times the cells per axis; non-periodic axes as ``_bin_rows``. Returns max |image|."""
+    worst = 0
+    for k in range(n_total):
+        c = 0
+        s2 = 0.0
+        s1 = 0.0
+        if periodic[2]:
+            s2 = (x[k, 2] - lo[2]) / period[2]
+        if periodic[1]:
+            s1 = ((x[k, 1] - lo[1]) - tilt[2] * s2) / period[1]
+        s0 = 0.0
+        if periodic[0]:
+            s0 = ((x[k, 0] - lo[0]) - tilt[0] * s1 - tilt[1] * s2) / period[0]
+        for d in range(3):
+            w = 0
+            if periodic[d]:
+                sd = s0 if d == 0 else (s1 if d == 1 else s2)
+                w = int(np.floor(sd))
+                if abs(w) > worst:
+                    worst = abs(w)
+                m = int((sd - w) * nc[d])
+            else:
+                m = int((x[k, d] - lo[d]) * inv_h[d])
+            if m < 0:
+                m = 0
+            elif m >= nc[d]:
+                m = nc[d] - 1
+            image[k, d] = w
+            c = c * nc[d] + m
+        cell_of[k] = c
+    return worst
+
+
+@njit(cache=True, error_model="numpy")
 def _counting_sort(cell_of, n_total, n_cells, cell_start, cell_rows):
     """Rows grouped by cell: rows of cell c are ``cell_rows[cell_start[c]:cell_start[c + 1]]``."""
     for c in range(n_cells + 1):
@@ -155,9 +199,10 @@ def _gather(x, radius, gid, image, cell_rows, n_total, xs, rs, gs, ims):
 
 @njit(cache=True, error_model="numpy")
 def _scan_run(b0, b1, a, i, gi, ri, xi0, xi1, xi2, t0i, t1i, t2i, xs, rs, gs, ims, cell_rows,
-              n_owned, skin, L0, L1, L2, pairs, shifts, count):
+              n_owned, skin, L0, L1, L2, pairs, shifts, count, XY=0.0, XZ=0.0, YZ=0.0):
     """Test owned row ``i`` (slot ``a``) against slots ``[b0, b1)`` (one or more consecutive cells
-    seen under the same cell shift); ``t*i`` = cell shift + image of i. Returns the updated count."""
+    seen under the same cell shift); ``t*i`` = cell shift + image of i; ``XY, XZ, YZ`` [m] the
+    tilt. Returns the updated count."""
     cap = pairs.shape[0]
     for b in range(b0, b1):
         # an owned-owned pair is met from both ends: keep it from the lower slot only (comparing
@@ -172,8 +217,8 @@ def _scan_run(b0, b1, a, i, gi, ri, xi0, xi1, xi2, t0i, t1i, t2i, xs, rs, gs, im
         t2 = t2i - ims[b, 2]
         # (x_j - x_i) + t L is exactly antisymmetric in (i, j) (IEEE rounding is symmetric under
         # negation) and R_i + R_j is commutative, so both ranks of a boundary pair decide alike
-        d0 = (xs[b, 0] - xi0) + t0 * L0
-        d1 = (xs[b, 1] - xi1) + t1 * L1
+        d0 = (xs[b, 0] - xi0) + ((t0 * L0 + t1 * XY) + t2 * XZ)
+        d1 = (xs[b, 1] - xi1) + (t1 * L1 + t2 * YZ)
         d2 = (xs[b, 2] - xi2) + t2 * L2
         reach = (ri + rs[b]) + skin
         if d0 * d0 + d1 * d1 + d2 * d2 < reach * reach:
@@ -208,7 +253,7 @@ def _neighbour_cell(e, n, periodic):
 
 @njit(cache=True, error_model="numpy")
 def _scan_pairs(xs, rs, gs, ims, n_owned, skin, period, periodic, nc, cell_start, cell_rows,
-                pairs, shifts):
+                pairs, shifts, tilt):
     """Full-shell scan of the 27 cells around each owned row; returns the number of pairs found.
 
     Works on the cell-ordered copies of ``_gather`` (slot ``b`` holds row ``cell_rows[b]``).
@@ -219,6 +264,7 @@ def _scan_pairs(xs, rs, gs, ims, n_owned, skin, period, periodic, nc, cell_start
     count = 0
     n0, n1, n2 = nc[0], nc[1], nc[2]
     L0, L1, L2 = period[0], period[1], period[2]
+    XY, XZ, YZ = tilt[0], tilt[1], tilt[2]
     p0, p1, p2 = periodic[0], periodic[1], periodic[2]
     for c0 in range(n0):
         for c1 in range(n1):
@@ -250,7 +296,7 @@ def _scan_pairs(xs, rs, gs, ims, n_owned, skin, period, periodic, nc, cell_start
                                 count = _scan_run(cell_start[row + c2 - 1], cell_start[row + c2 + 2],
                                                   a, i, gi, ri, xi0, xi1, xi2, t0i, t1i, ims[a, 2],
                                                   xs, rs, gs, ims, cell_rows, n_owned, skin,
-                                                  L0, L1, L2, pairs, shifts, count)
+                                                  L0, L1, L2, pairs, shifts, count, XY, XZ, YZ)
                                 continue
                             for o2 in range(-1, 2):
                                 e2, s2 = _neighbour_cell(c2 + o2, n2, p2)
@@ -260,7 +306,8 @@ def _scan_pairs(xs, rs, gs, ims, n_owned, skin, period, periodic, nc, cell_start
                                 count = _scan_run(cell_start[e], cell_start[e + 1],
                                                   a, i, gi, ri, xi0, xi1, xi2, t0i, t1i,
                                                   s2 + ims[a, 2], xs, rs, gs, ims, cell_rows,
-                                                  n_owned, skin, L0, L1, L2, pairs, shifts, count)
+                                                  n_owned, skin, L0, L1, L2, pairs, shifts, count,
+                                                  XY, XZ, YZ)
     return count
 
 
@@ -304,12 +351,25 @@ def max_displacement_exceeds(x, x_ref, n, half_skin):
 
 class CellGrid:
     """Cell grid of one build: origin ``lo`` [m], cells per axis ``nc``, inverse edge ``inv_h`` [1/m],
-    ``period`` [m] (0 along non-periodic axes) and the periodic flags."""
+    ``period`` [m] (0 along non-periodic axes) and the periodic flags; ``tilt`` [3] [m] (xy, xz, yz)
+    of a tilted cell (zeros: rectangular), ``tilted``."""
 
-    def __init__(self, x, radius, n_total, skin, box_lo, box_hi, periodic, max_cells=None):
+    def __init__(self, x, radius, n_total, skin, box_lo, box_hi, periodic, max_cells=None, tilt=None):
         self.periodic = np.array([bool(p) for p in periodic], dtype=np.bool_)
         if self.periodic.shape != (3,):
             raise ValueError("periodic must hold 3 booleans")
+        self.tilt = np.zeros(3) if tilt is None else np.array(tilt, dtype=np.float64).reshape(3)
+        self.tilted = bool(np.any(self.tilt != 0.0))
+        if self.tilted and not (np.all(np.isfinite(self.tilt)) and all(
+                self.tilt[c] == 0.0 or (self.periodic[a] and self.periodic[b])
+                for c, (a, b) in enumerate(((0, 1), (0, 2), (1, 2))))):
+            raise ValueError(f"tilt {self.tilt.tolist()}: each tilt (xy, xz, yz) needs finite values and "
+                             "both axes it couples periodic")
+        width = None
+        if self.tilted:
+            L = [float(box_hi[d]) - float(box_lo[d]) if self.periodic[d] else 1.0 for d in range(3)]
+            H = np.array([[L[0], self.tilt[0], self.tilt[1]], [0.0, L[1], self.tilt[2]], [0.0, 0.0, L[2]]])
+            width = 1.0 / np.linalg.norm(np.linalg.inv(H), axis=1)   # distances between opposite faces
         xmin, xmax = np.empty(3), np.empty(3)
         rmax = _extents(x, radius, n_total, xmin, xmax)
         cut = 2.0 * rmax + skin
@@ -328,9 +388,10 @@ class CellGrid:
                 if box_lo is None or box_hi is None:
                     raise ValueError("box_lo and box_hi are needed along periodic axes")
                 L = float(box_hi[d]) - float(box_lo[d])
-                if not L >= 2.0 * cut:
+                W = L if width is None else float(width[d])
+                if not W >= 2.0 * cut:
                     raise ValueError(
-                        f"periodic axis {'xyz'[d]}: period {L:.6g} m is shorter than twice the "
+                        f"periodic axis {'xyz'[d]}: period {W:.6g} m is shorter than twice the "
                         f"interaction range 2 R_max + skin = {cut:.6g} m; an element could reach two "
                         "images of a neighbour (enlarge the box or disable periodicity)")
                 if not (box_lo[d] - MAX_IMAGE * L <= xmin[d] and xmax[d] < box_hi[d] + MAX_IMAGE * L):
@@ -340,7 +401,7 @@ class CellGrid:
                 self.lo[d] = float(box_lo[d])
                 self.period[d] = L
                 extent[d] = L
-                nc[d] = max(1, int(L // h_min)) if h_min > 0.0 else 1
+                nc[d] = max(1, int(W // h_min)) if h_min > 0.0 else 1
             else:
                 self.lo[d] = float(xmin[d])
                 extent[d] = float(xmax[d] - xmin[d])
@@ -357,6 +418,8 @@ class CellGrid:
                 nc[np.argmax(nc)] -= 1
         self.nc = nc
         self.inv_h = np.where(extent > 0.0, nc / np.where(extent > 0.0, extent, 1.0), 0.0)
+        if self.tilted:   # periodic axes are binned by fractional coordinates: cells per unit
+            self.inv_h = np.where(self.periodic, nc.astype(np.float64), self.inv_h)
 
     @property
     def n_cells(self) -> int:
@@ -401,19 +464,24 @@ class _Workspace:
 
 
 def _fill(x, radius, gid, n_owned, n_total, skin, box_lo, box_hi, periodic, pairs, shifts, work,
-          max_cells=None):
+          max_cells=None, tilt=None):
     """Bin, sort and scan once; returns ``(count, grid)``. ``count > len(pairs)`` means overflow."""
-    grid = CellGrid(x, radius, n_total, skin, box_lo, box_hi, periodic, max_cells)
+    grid = CellGrid(x, radius, n_total, skin, box_lo, box_hi, periodic, max_cells, tilt)
     work.ensure(n_total, grid.n_cells)
-    worst = _bin_rows(x, n_total, grid.lo, grid.inv_h, grid.nc, grid.period, grid.periodic,
-                      work.cell_of, work.image)
+    if grid.tilted:
+        worst = _bin_rows_tilted(x, n_total, grid.lo, grid.inv_h, grid.nc, grid.period, grid.periodic,
+                                 grid.tilt, work.cell_of, work.image)
+    else:
+        worst = _bin_rows(x, n_total, grid.lo, grid.inv_h, grid.nc, grid.period, grid.periodic,
+                          work.cell_of, work.image)
     if worst > MAX_IMAGE:
         raise ValueError(f"a position lies {worst} periods outside the periodic box (at most "
                          f"{MAX_IMAGE} fit the int8 shifts); wrap positions into the box at a rebuild")
     _counting_sort(work.cell_of, n_total, grid.n_cells, work.cell_start, work.cell_rows)
     _gather(x, radius, gid, work.image, work.cell_rows, n_total, work.xs, work.rs, work.gs, work.ims)
     count = _scan_pairs(work.xs, work.rs, work.gs, work.ims, n_owned, float(skin), grid.period,
-                        grid.periodic, grid.nc, work.cell_start, work.cell_rows, pairs, shifts)
+                        grid.periodic, grid.nc, work.cell_start, work.cell_rows, pairs, shifts,
+                        grid.tilt)
     return count, grid
 
 
@@ -422,7 +490,7 @@ def _grown(capacity, needed, growth):
 
 
 def build_pairs(x, radius, gid, n_owned, n_total, skin, box_lo=None, box_hi=None,
-                periodic=(False, False, False), capacity=None, growth=1.5, max_cells=None):
+                periodic=(False, False, False), capacity=None, growth=1.5, max_cells=None, tilt=None):
     """Candidate pairs within ``R_i + R_j + skin``, each once, at least one end owned.
 
     Parameters
@@ -438,11 +506,13 @@ def build_pairs(x, radius, gid, n_owned, n_total, skin, box_lo=None, box_hi=None
     capacity : int, initial buffer size in pairs (default ``8 * n_owned``); grown on overflow.
     growth : capacity multiplier on overflow (the new size is also >= 1.1 x the size needed).
     max_cells : cap on the number of cells (default ``2 n_total + 64``).
+    tilt : None or [3] (xy, xz, yz) [m] of a tilted periodic cell (module conventions).
 
     Returns
     -------
     pairs : [n_pairs, 2] int32, rows (i, j) with ``gid[i] < gid[j]``.
-    shifts : [n_pairs, 3] int8, image of j: branch vector ``(x[j] - x[i]) + shifts * L``.
+    shifts : [n_pairs, 3] int8, image of j: branch vector ``(x[j] - x[i]) + shifts * L`` (``+ H
+        shifts`` in a tilted cell).
     Both are views into buffers of ``capacity`` rows.
 
     Raises
@@ -463,7 +533,7 @@ def build_pairs(x, radius, gid, n_owned, n_total, skin, box_lo=None, box_hi=None
         pairs = np.empty((capacity, 2), dtype=np.int32)
         shifts = np.empty((capacity, 3), dtype=np.int8)
         count, _ = _fill(x, radius, gid, n_owned, n_total, skin, box_lo, box_hi, periodic,
-                         pairs, shifts, work, max_cells)
+                         pairs, shifts, work, max_cells, tilt)
         if count <= capacity:
             return pairs[:count], shifts[:count]
         capacity = _grown(capacity, count, growth)
@@ -493,6 +563,7 @@ class VerletList:
         self.periodic = tuple(bool(p) for p in periodic)
         self.box_lo = None if box_lo is None else np.asarray(box_lo, dtype=np.float64).copy()
         self.box_hi = None if box_hi is None else np.asarray(box_hi, dtype=np.float64).copy()
+        self.tilt = None
         self.capacity_per_row = float(capacity_per_row)
         self.growth = float(growth)
         self._pairs = np.empty((0, 2), dtype=np.int32)
@@ -524,8 +595,9 @@ class VerletList:
         return np.zeros(3) if self.grid is None else self.grid.period
 
     def rebuild(self, x, radius, gid, n_owned, n_total=None, box_lo=None, box_hi=None,
-                periodic=None):
-        """Build the list from the current rows and remember ``x`` as the reference positions."""
+                periodic=None, tilt=None):
+        """Build the list from the current rows and remember ``x`` as the reference positions;
+        ``tilt`` [3] [m]: that of a tilted cell (module conventions; None: rectangular)."""
         x = np.ascontiguousarray(x, dtype=np.float64)
         radius = np.ascontiguousarray(radius, dtype=np.float64)
         gid = np.ascontiguousarray(gid, dtype=np.int64)
@@ -537,6 +609,7 @@ class VerletList:
             self.box_hi = np.asarray(box_hi, dtype=np.float64).copy()
         if periodic is not None:
             self.periodic = tuple(bool(p) for p in periodic)
+        self.tilt = None if tilt is None else np.array(tilt, dtype=np.float64).reshape(3)
         _check_inputs(x, radius, gid, n_owned, n_total, self.skin)
         self.n_owned, self.n_total = n_owned, n_total
         self.x_build = x[:n_total].copy()
@@ -550,7 +623,8 @@ class VerletList:
             self._allocate(want)
         while True:
             count, self.grid = _fill(x, radius, gid, n_owned, n_total, self.skin, self.box_lo,
-                                     self.box_hi, self.periodic, self._pairs, self._shifts, self._work)
+                                     self.box_hi, self.periodic, self._pairs, self._shifts, self._work,
+                                     tilt=self.tilt)
             if count <= self.capacity:
                 self.n_pairs = count
                 return self
@@ -569,7 +643,12 @@ class VerletList:
         j = np.ascontiguousarray(self.pairs[:, 1])
         if not any(self.periodic) or self.grid is None:
             return i, j, None
-        return i, j, self.shifts * self.grid.period
+        s = self.shifts * self.grid.period
+        if self.grid.tilted:   # + H shifts, grouped as the scan
+            xy, xz, yz = self.grid.tilt
+            s[:, 0] = (s[:, 0] + self.shifts[:, 1] * xy) + self.shifts[:, 2] * xz
+            s[:, 1] = s[:, 1] + self.shifts[:, 2] * yz
+        return i, j, s
 
     def _current(self, x):
         x = np.ascontiguousarray(x, dtype=np.float64)

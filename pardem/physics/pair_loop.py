@@ -46,7 +46,7 @@ from numba import njit
 from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, add_love_weber, affine_motion,
                                           any_rate, check_pairs, clear_history, contact_geometry,
                                           pair_separation, relative_motion, scatter_pair,
-                                          write_pair)
+                                          shear_motion, write_pair)
 from pardem.physics.exact_accumulate import NLIMB
 from pardem.physics.exact_accumulate import add as exact_add
 from pardem.physics.exact_accumulate import normalize as exact_normalize
@@ -101,7 +101,7 @@ def _relative_motion(dv0, dv1, dv2, wi0, wi1, wi2, wj0, wj1, wj2, n0, n1, n2, li
 
 @lru_cache(maxsize=None)
 def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exact=False,
-              with_stress=True, *, history_width, with_mass=True):
+              with_stress=True, *, history_width, with_mass=True, sheared=False):
     """The compiled neighbour-list kernel of one law function and loop choice (built once).
 
     ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, c, n_owned, acc, xacc)``
@@ -110,7 +110,9 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     owned to ``acc`` [10] (``contact_frame.add_love_weber``) and returns their elastic energy [J]
     (0 unless ``with_energy``: its arithmetic is then left out, 8 % of the loop). ``shift``
     [n_pairs, 3] [m] and the cell's diagonal strain rate ``rate`` [3] [1/s] are read only when
-    ``periodic`` and ``deforming``; ``c`` is the law's constants tuple.
+    ``periodic`` and ``deforming``; ``c`` is the law's constants tuple. ``sheared``: ``rate`` is
+    the shearing cell's velocity gradient [6] (``PeriodicCell.gradient``: diagonal, then ``dv_x/dy,
+    dv_x/dz, dv_y/dz``), its affine motion ``contact_frame.shear_motion``.
 
     ``history_width``: the columns of ``history``, compiled in as a constant (the history copies
     then unroll; with unsigned row indices, which need no negative-index wrap-around per access:
@@ -148,14 +150,15 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     pair = _pair(forces, engaged, bool(deforming))
     return _jit(_list_loop(bool(periodic), bool(deforming), bool(with_energy), bool(exact),
                            bool(with_stress) or bool(exact), int(history_width),
-                           bool(with_mass)), pair,
+                           bool(with_mass), bool(sheared)), pair,
                 _name(forces, engaged), forces=forces, engaged=engaged)
 
 
 NO_XACC = np.zeros((10, NLIMB), dtype=np.int64)   # the exact accumulator of loops without ``exact``
 
 
-def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_width, with_mass):
+def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_width, with_mass,
+               sheared=False):
     B = BLOCK
     WIDTH = history_width
 
@@ -168,8 +171,11 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_wid
         a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
         count = 0
         ok = True
+        g3 = g4 = g5 = 0.0
         if deforming:
             g0, g1, g2 = rate[0], rate[1], rate[2]
+        if sheared:
+            g3, g4, g5 = rate[3], rate[4], rate[5]
         width = WIDTH                # a compile-time constant: the history copies unroll
         gat = np.empty((14, B))      # per pair: d (3), r_i, r_j, v_i - v_j (3), w_i (3), w_j (3)
         res = np.empty((11, B))      # per pair: F_i (3), T_i (3), T_j (3), energy, acts
@@ -241,7 +247,10 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_wid
                     un, ut0, ut1, ut2, spin = _relative_motion(
                         gat[5, k], gat[6, k], gat[7, k], gat[8, k], gat[9, k], gat[10, k],
                         gat[11, k], gat[12, k], gat[13, k], n0, n1, n2, li, lj)
-                    if deforming:
+                    if sheared:
+                        un, ut0, ut1, ut2 = shear_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1,
+                                                         n2, g0, g1, g2, g3, g4, g5)
+                    elif deforming:
                         un, ut0, ut1, ut2 = affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1,
                                                           n2, g0, g1, g2)
                     acts, fn, ft0, ft1, ft2, e = forces(k, k, B + k, ri, rj, rsum, delta, n0,  # noqa: F821
@@ -432,7 +441,8 @@ def law_interface(pair_function, constants, history_width, reads_mass=None):
         (``history_width(params)``; columns 0:3 the tangential force on i [N]), updated in place
         (columns 0:3 zeroed for pairs not engaged); dt [s] : step; shift : optional [n_pairs, 3]
         periodic image shift added to ``x_j`` [m]; rate : optional diagonal strain rate [3] [1/s]
-        of the periodic cell (needs ``shift``); acc : optional [10] Love-Weber sums, added to.
+        of the periodic cell, or its velocity gradient [6] [1/s] when it shears (``PeriodicCell.
+        gradient``) (needs ``shift``); acc : optional [10] Love-Weber sums, added to.
         Returns the elastic energy [J] of the pairs whose ``i`` is owned (NaN when not
         ``with_energy``: the loop then does not compute it). xacc : optional [10, NLIMB] int64
         exact accumulator (reproducible runs, ``pair_loop``'s ``exact``): the Love-Weber sums and
@@ -443,10 +453,12 @@ def law_interface(pair_function, constants, history_width, reads_mass=None):
         e = elements
         check_pairs(i, j, history, shift, history_width(params))
         forces, engaged = pair_function(params)
+        sheared = rate is not None and len(rate) == 6
         loop = pair_loop(forces, engaged, shift is not None,
-                         rate is not None and any_rate(rate), bool(with_energy),
+                         rate is not None and (sheared or any_rate(rate)), bool(with_energy),
                          xacc is not None, bool(with_stress), history_width=history.shape[1],
-                         with_mass=True if reads_mass is None else bool(reads_mass(params)))
+                         with_mass=True if reads_mass is None else bool(reads_mass(params)),
+                         sheared=sheared)
         energy = loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
                       e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history, float(dt),
                       constants(params, dt), e.n_owned, np.zeros(10) if acc is None else acc,
