@@ -376,3 +376,17 @@ def test_granular_points_contacts_and_cell_match_the_state(tmp_path):
     np.testing.assert_array_equal(b.cell_data["length"][0][0], sim.cell.length)
     for pvd, f in (("contacts.pvd", "contacts-00000020.vtu"), ("cell.pvd", "cell-00000020.vtu")):
         assert read_pvd(out / pvd) == [(pytest.approx(20 * sim.dt, rel=1e-12), f)]
+
+
+def test_a_tilted_cell_is_written_as_its_parallelepiped():
+    """Simple shear tilts the cell: the box written for ParaView has the corners lo + H c (the top
+    face shifted by the xy and xz tilts, the far face by yz), not the untilted box."""
+    from pardem.engine.periodic_cell import PeriodicCell
+    from pardem.io.paraview import cell_mesh
+    cell = PeriodicCell((1.0, 2.0, 3.0), (2.0, 4.0, 8.0), (True,) * 3, tilt=(0.5, -0.25, 1.5))
+    pts = cell_mesh(cell).points
+    # corner (1, 1, 1) of the unit cube: lo + a + b + c with a = (2,0,0), b = (0.5,4,0), c = (-0.25,1.5,8)
+    assert np.allclose(pts[6], (1.0 + 2.0 + 0.5 - 0.25, 2.0 + 4.0 + 1.5, 3.0 + 8.0), rtol=0, atol=1e-15)
+    assert np.allclose(pts[3], (1.0 + 0.5, 2.0 + 4.0, 3.0), rtol=0, atol=1e-15)     # lo + b
+    flat = PeriodicCell((1.0, 2.0, 3.0), (2.0, 4.0, 8.0), (True,) * 3)
+    assert np.array_equal(cell_mesh(flat).points[6], (3.0, 6.0, 11.0))

@@ -207,9 +207,12 @@ _HEX_CORNERS = np.array([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0),
 
 
 def cell_mesh(cell):
-    """The meshio Mesh of a ``PeriodicCell``: one hexahedron from ``lo`` to ``lo + length`` [m]."""
+    """The meshio Mesh of a ``PeriodicCell``: one hexahedron with corners ``lo + H c`` [m], ``H``
+    the edge vectors (``cell.edges``: a box, or a parallelepiped when simple shear tilts it), ``c``
+    the unit cube's corners."""
     lo, length = np.asarray(cell.lo, float), np.asarray(cell.length, float)
-    points = lo + _HEX_CORNERS * length
+    edges = np.asarray(getattr(cell, "edges", np.diag(length)), float)
+    points = lo + _HEX_CORNERS @ edges.T
     data = {"length": length, "strain": np.asarray(cell.strain, float), "rate": np.asarray(cell.rate, float)}
     return meshio.Mesh(points, [("hexahedron", np.arange(8, dtype=np.int64).reshape(1, 8))],
                        cell_data={k: [v.reshape(1, 3)] for k, v in data.items()})
