@@ -42,6 +42,7 @@ import math
 import numpy as np
 
 from pardem.engine.critical_step import critical_time_step_of
+from pardem.parallel.exact_sum import exact_sum
 from pardem.physics import curved_walls, wall_motion
 from pardem.physics import walls as wall_kernels
 from pardem.physics.arguments import array, keywords, real, short
@@ -143,7 +144,10 @@ class Servo:
     ``v_n = gain (F_target - F_n)`` [m/s], capped at ``max_speed``, with ``F_n`` the global
     compressive force of the elements on it [N] (``Walls.normal_force``) and ``F_target = force``
     or ``stress * area`` [N]; the speed is updated every ``period`` steps (a collective of the
-    run's operations, ``ServoOperation``) and held between. ``gain`` [m/(N s)]: with the wall's
+    run's operations, ``ServoOperation``) and held between. ``F_n`` is the elastic normal force of
+    the wall's contacts at the end of the step (the dashpots left out: they average out at a steady
+    state, and the measure is then a function of the positions, summed exactly over the ranks, so
+    that a servo run is the same bits on any number of ranks); ``measured`` holds its last value. ``gain`` [m/(N s)]: with the wall's
     contacts of total stiffness ``k_w`` [N/m] the force error shrinks by ``1 - gain k_w period dt``
     per update, so the servo is stable for ``gain < 2 / (k_w period dt)`` and reaches the target
     without overshoot for ``gain <= 1 / (k_w period dt)`` (docs/physics.md, walls);
@@ -169,6 +173,7 @@ class Servo:
         self.speed = float(speed)
         self.offset_ref = None if offset_ref is None else float(offset_ref)
         self.time_ref = None if time_ref is None else float(time_ref)
+        self.measured = math.nan
 
     def gain_bound(self, stiffness, dt):
         """The largest stable gain [m/(N s)] for contacts of total stiffness [N/m] at step dt [s]."""
@@ -416,12 +421,23 @@ class ServoOperation:
         if sim.plates is not w:
             return
         t = sim.time
-        fn = w.normal_force
-        for k, m in enumerate(w.motions or ()):
-            if isinstance(m, Servo) and sim.step_count % m.period == 0:
-                m.offset_ref = float(w.offsets_at(t)[k])
-                m.time_ref = float(t)
-                m.speed = float(np.clip(m.gain * (m.target - fn[k]), -m.max_speed, m.max_speed))
+        e = sim.elements
+        due = [k for k, m in enumerate(w.motions or ())
+               if isinstance(m, Servo) and sim.step_count % m.period == 0]
+        if not due:
+            return
+        off = w.offsets_at(t)
+        hertz = w.law.law == "hertz"
+        terms = np.stack([wall_kernels.elastic_normal_terms(e.x, e.radius, e.n_owned, *w.normals[k],
+                                                             float(off[k]), hertz, w.law.stiff_n)
+                          for k in due], axis=1)
+        fn = np.atleast_1d(exact_sum(sim.comm, terms))
+        for i, k in enumerate(due):
+            m = w.motions[k]
+            m.offset_ref = float(off[k])
+            m.time_ref = float(t)
+            m.measured = float(fn[i])
+            m.speed = float(np.clip(m.gain * (m.target - fn[i]), -m.max_speed, m.max_speed))
 
 
 def attach_servos(sim, walls):

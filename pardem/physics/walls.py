@@ -309,6 +309,22 @@ def wall_loop(law, damped, friction):
     return _wall_loop(law == "hertz", bool(damped), bool(friction))
 
 
+@njit(cache=True, error_model="numpy")
+def elastic_normal_terms(x, radius, n_owned, n0, n1, n2, offset, hertz, stiff_n):
+    """Per owned row [n_owned] the elastic normal force [N] of its contact with the plane
+    ``n . x = offset`` (``kn delta`` or ``4/3 E* sqrt(R delta) delta``; 0 without contact): the
+    terms of a servo's measure, a function of the positions only (summed exactly over ranks)."""
+    out = np.zeros(n_owned)
+    for k in range(n_owned):
+        delta = radius[k] - (n0 * x[k, 0] + n1 * x[k, 1] + n2 * x[k, 2] - offset)
+        if delta > 0.0:
+            if hertz:
+                out[k] = 4.0 / 3.0 * stiff_n * np.sqrt(radius[k] * delta) * delta
+            else:
+                out[k] = stiff_n * delta
+    return out
+
+
 # ---------------------------------------------------------------------------------------------
 # model interface (STYLE pattern 3)
 
