@@ -1,4 +1,5 @@
-"""Planar walls for any ``Simulation``: static or moving at constant velocity.
+"""Walls for any ``Simulation``: planes (static, at constant velocity, on a prescribed motion or
+force-controlled), cylinders and triangle meshes, in one set sharing one law.
 
 ``Walls`` is a set of infinite planes sharing one element-wall law (``pardem.physics.walls.Params``,
 linear or Hertz, optional friction and restitution). It has the interface ``Simulation`` uses for
@@ -17,6 +18,17 @@ friction). Walls do not rotate.
 (``elements.wall_h``, [n_rows, n_walls, 3] with friction, [n_rows, 0, 3] without; it migrates with the
 elements between ranks), attaches it as ``sim.plates`` and checks ``sim.dt`` against the critical time
 step with the walls' stiffness (``pardem.engine.critical_step.critical_time_step_of``).
+
+Beyond planes at constant velocity (docs/physics.md, section 8, walls): ``motions`` gives a plane
+a prescribed translation of ``pardem.physics.wall_motion`` (ramp, sinusoid, table) or makes it
+force-controlled (``Servo``: its speed along the normal follows the force error, updated every
+``period`` steps by ``ServoOperation``, one operation of ``sim.operations``); ``Cylinder`` and
+``Mesh`` are curved and triangulated surfaces (``pardem.physics.curved_walls``), each with a
+translation motion, a cylinder also with a spin about its axis. All share the set's law and the
+elements' wall history (one column per plane, cylinder and mesh, in that order); the rows of
+``force`` follow the same order; ``triangle_force`` / ``triangle_forces(comm)`` are per triangle.
+The description (``pardem.engine.system.WallModel``) stores every motion and the servo's state, so
+that a restored set moves the same bits.
 
 ``walls.force`` [n_walls, 3] [N] is the total force of the elements **on** each wall and
 ``walls.normal_force`` [n_walls] [N] its compressive part ``-F . n`` (positive when the elements
