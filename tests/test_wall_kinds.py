@@ -293,6 +293,48 @@ def test_mesh_contacts_match_a_brute_force_search(comm):
     assert np.allclose(tri_force, want_tri, rtol=0, atol=1e-12)
 
 
+def square(half=0.1):
+    """Two triangles of the square [-half, half]^2 in the plane z = 0."""
+    c = np.array([[-half, -half, 0.0], [half, -half, 0.0], [half, half, 0.0], [-half, half, 0.0]])
+    return np.array([[c[0], c[1], c[2]], [c[0], c[2], c[3]]])
+
+
+def clamped_on_mesh(comm, mesh, x, law):
+    walls = pardem.WallModel(np.zeros((0, 3)), np.zeros((0, 3)), law, meshes=[mesh])
+    sim = one_sphere(comm, x, walls, gravity=False)
+    pardem.add_fixes(sim, pardem.Clamp([0]))     # the sphere stays: the wall force is the law's
+    return sim
+
+
+def test_a_turning_mesh_presents_its_rotated_plane(comm):
+    # the square turns about the x axis at Omega: its normal is (0, -sin phi, cos phi), phi = Omega t;
+    # a clamped sphere at (x, y0, h) is n . p = h cos phi - y0 sin phi from its plane and feels the
+    # frictionless undamped force k (R - n . p) n (the force on the mesh is minus that), to round-off
+    k, omega, y0, h = 1e5, 1.0, 0.01, R - 1e-4
+    mesh = Mesh(square(), rotation=((0, 0, 0), (1, 0, 0), omega))
+    sim = clamped_on_mesh(comm, mesh, (0.03, y0, h), pardem.wall_law("linear", stiffness=k))
+    for _ in range(3):
+        sim.run(int(0.05 / sim.dt))
+        phi = omega * sim.time
+        n = np.array([0.0, -math.sin(phi), math.cos(phi)])
+        gap = h * math.cos(phi) - y0 * math.sin(phi)
+        assert np.allclose(sim.plates.force[0], -k * (R - gap) * n, rtol=0, atol=1e-9)
+
+
+def test_a_turntable_mesh_drags_a_sphere_at_its_surface_speed(comm):
+    # the square turns about z at Omega under a clamped sphere at (r0, 0): its surface slides under
+    # the sphere at Omega r0 along +y, so the tangential spring grows by kt Omega r0 dt a step
+    # (undamped law, below the Coulomb cap): the force on the mesh after t is -kt Omega r0 t along
+    # y, within one step's increment (the forces of step 0 add one update)
+    k, omega, r0, delta = 1e5, 2.0, 0.05, 1e-3
+    mesh = Mesh(square(), rotation=((0, 0, 0), (0, 0, 1), omega))
+    sim = clamped_on_mesh(comm, mesh, (r0, 0.0, R - delta), pardem.wall_law("linear", stiffness=k, friction=1.0))
+    sim.run(int(0.005 / sim.dt))         # the spring reaches 50 N, half the cap mu k delta
+    step = k * omega * r0 * sim.dt
+    assert abs(sim.plates.force[0, 1] - (-k * omega * r0 * sim.time)) <= 1.01 * step
+    assert sim.plates.force[0, 2] == pytest.approx(-k * delta, rel=1e-12)
+
+
 # -- cylinders --------------------------------------------------------------------------------
 
 def cylinder_sphere(comm, friction, theta0, rc=0.1, k=1e6, spin=0.0, w0=(0.0, 0.0, 0.0)):
@@ -360,7 +402,8 @@ def test_descriptions_round_trip_through_json_and_old_ones_keep_their_keys(comm)
     model = pardem.WallModel([[0, 0, 1], [0, 0, -1]], [[0, 0, 0], [0, 0, 0.1]], law,
                              motions=[pardem.Sinusoid((0, 0, 1e-3), 3.0), Servo(1e-3, stress=1e3, area=0.01)],
                              cylinders=[Cylinder((0, 0, 0), (1, 1, 0), 0.5, extent=(-0.1, 0.2), angular_velocity=1.0)],
-                             meshes=[Mesh(tris, motion=pardem.Ramp((0.1, 0, 0), 1.0), reach=0.02)])
+                             meshes=[Mesh(tris, motion=pardem.Ramp((0.1, 0, 0), 1.0), reach=0.02,
+                                          rotation=((0, 0, 0.01), (0, 1, 1), 0.5))])
     sim = pardem.build(comm, pardem.System(pardem.Particles([[0, 0, 0.05]], R, RHO), walls=model))
     sim.run(3)
     d = pardem.describe(sim).to_dict()

@@ -114,11 +114,14 @@ class Cylinder:
 class Mesh:
     """A triangle-mesh wall (``pardem.physics.curved_walls``): ``triangles`` [n_tri, 3, 3] [m]
     (``pardem.io.stl.read_stl``), one contact per element (the nearest point of the mesh);
-    ``motion`` a translation of ``pardem.physics.wall_motion`` (default static); ``reach`` [m] the
-    largest element radius the candidate grid serves (default: set by ``add_walls`` to 1.5 times
-    the largest radius of the system); ``name`` for the user."""
+    ``motion`` a translation of ``pardem.physics.wall_motion`` (default static); ``rotation``
+    ``(centre [3] [m], axis [3], angular_velocity [rad/s])``: a steady turn of the mesh about the
+    axis through ``centre`` (a point of the mesh's frame, carried by the translation), by
+    ``angular_velocity (t - time0)`` (default none); ``reach`` [m] the largest element radius the
+    candidate grid serves (default: set by ``add_walls`` to 1.5 times the largest radius of the
+    system); ``name`` for the user."""
 
-    def __init__(self, triangles, motion=None, reach=None, name=""):
+    def __init__(self, triangles, motion=None, reach=None, name="", rotation=None):
         tris = array("Mesh.triangles", triangles, "[m]")
         if tris.ndim != 3 or tris.shape[1:] != (3, 3) or tris.shape[0] < 1 or not np.all(np.isfinite(tris)):
             raise ValueError(f"Mesh.triangles must be finite [n_tri >= 1, 3, 3] [m], got shape {tris.shape}")
@@ -132,6 +135,28 @@ class Mesh:
         self.reach = None if reach is None else real("Mesh.reach", reach, lo=0.0, unit="[m]")
         self.name = str(name)
         self._grid = None
+        self.rotation = None
+        if rotation is not None:
+            try:
+                centre, axis, rate = rotation
+            except (TypeError, ValueError):
+                raise ValueError(f"Mesh.rotation must be (centre [3] [m], axis [3], angular_velocity [rad/s]), "
+                                 f"got {rotation!r}") from None
+            a = _vec3("Mesh.rotation axis", axis, "")
+            if not np.linalg.norm(a) > 0.0:
+                raise ValueError(f"Mesh.rotation axis must be a non-zero vector, got {a.tolist()}")
+            self.rotation = (_vec3("Mesh.rotation centre", centre, "[m]"), a / np.linalg.norm(a),
+                             real("Mesh.rotation angular_velocity", rate, unit="[rad/s]"))
+
+    def turn(self, tau):
+        """``(rotating, centre [3], rot [3, 3], spin [3])`` at ``tau`` [s] after ``time0``."""
+        if self.rotation is None:
+            return False, np.zeros(3), np.eye(3), np.zeros(3)
+        centre, a, rate = self.rotation
+        angle = rate * tau
+        k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+        rot = np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)   # Rodrigues
+        return True, centre, rot, rate * a
 
     @property
     def n_triangles(self):
@@ -143,12 +168,18 @@ class Mesh:
         return self._grid
 
     def to_dict(self):
-        return {"kind": "mesh", "triangles": self.triangles.tolist(), "motion": self.motion.to_dict(),
-                "reach": self.reach, "name": self.name}
+        d = {"kind": "mesh", "triangles": self.triangles.tolist(), "motion": self.motion.to_dict(),
+             "reach": self.reach, "name": self.name}
+        if self.rotation is not None:
+            d["rotation"] = [self.rotation[0].tolist(), self.rotation[1].tolist(), self.rotation[2]]
+        return d
 
     @classmethod
     def from_dict(cls, d):
-        return cls(d["triangles"], d["motion"], d["reach"], d.get("name", ""))
+        m = cls(d["triangles"], d["motion"], d["reach"], d.get("name", ""), d.get("rotation"))
+        if m.rotation is not None:      # the stored unit axis, bit for bit
+            m.rotation = (m.rotation[0], np.asarray(d["rotation"][1], dtype=np.float64), m.rotation[2])
+        return m
 
 
 class Servo:
@@ -299,6 +330,7 @@ class Walls:
         n_tri = sum(m.n_triangles for m in meshes)
         self.triangle_force = np.zeros((n_tri, 3))   # this rank's force on each triangle [N]
         self._shifts = np.zeros((others, 3))
+        self._time_now = self.time0
         # Simulation stores the compressive force of the first two planes here (Plates' interface)
         self.force_local = np.zeros(min(n, 2))
 
@@ -340,6 +372,7 @@ class Walls:
 
     def move_to(self, time):
         self.offsets[:] = self.offsets_at(time)
+        self._time_now = float(time)
         for i, s in enumerate(self.cylinders + self.meshes):
             self._shifts[i] = s.motion.displacement(time - self.time0)
 
@@ -375,10 +408,12 @@ class Walls:
             tri0 = 0
             for i, m in enumerate(self.meshes):
                 lo, h, dims, start, items = m.grid()
+                # the turn where move_to put the surfaces (the end of the step), the spin steady
+                rotating, centre, rot, spin = m.turn(self._time_now - self.time0)
                 en, too_big = loop(e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, e.n_owned, m.triangles, tri0,
                                    lo, h, dims, start, items, m.reach,
                                    self._shifts[len(self.cylinders) + i], m.motion.velocity_at(tau),
-                                   col, e.wall_h, float(dt), p.stiff_n, p.stiff_t, p.friction, p.damp_n,
+                                   rotating, centre, rot, spin, col, e.wall_h, float(dt), p.stiff_n, p.stiff_t, p.friction, p.damp_n,
                                    p.damp_t, self.wall_force, self.triangle_force)
                 if too_big:
                     raise ValueError(f"{too_big} element(s) are larger than mesh {i}'s reach "

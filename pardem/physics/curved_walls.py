@@ -18,7 +18,9 @@ The surface velocity is ``V + Omega a x (x_c - p)`` with ``V`` [3] [m/s] the tra
 ``Omega`` [rad/s] the spin about the axis (a rotating drum).
 
 Meshes (triangles ``[n_tri, 3, 3]`` [m] in the mesh's own frame, placed at the translation
-``shift`` [3] [m], moving at ``V`` [3] [m/s]): **one contact per element and mesh**, at the point
+``shift`` [3] [m], moving at ``V`` [3] [m/s], optionally turned by a rotation ``rot`` about a point
+``centre`` of its frame and spinning at ``spin`` [3] [rad/s]: the surface velocity at the contact
+point is ``V + spin x (x_c - centre - shift)``): **one contact per element and mesh**, at the point
 of the mesh nearest to the centre (over all candidate triangles: a face, an edge or a vertex, by
 Ericson's closest-point regions; a tie, such as the shared edge of two coplanar triangles, goes to
 the lower triangle index). ``n = (x - c) / |x - c|``; a centre exactly on the surface takes the
@@ -231,9 +233,11 @@ def mesh_grid(triangles, reach):
 def _mesh_loop(hertz, damped, friction):
     @njit(cache=True, error_model="numpy")
     def loop(x, v, w, radius, mass, f, t, n_owned, tris, tri0, lo, h, dims, start, items, reach,
-             shift, velocity, wl, hist, dt, stiff_n, stiff_t, mu, damp_n, damp_t, wall_force, tri_force):
+             shift, velocity, rotating, centre, rot, spin, wl, hist, dt, stiff_n, stiff_t, mu, damp_n,
+             damp_t, wall_force, tri_force):
         """One mesh (column ``wl``); returns ``(energy [J], the number of owned elements larger
-        than reach)``."""
+        than reach)``. With ``rotating``, the mesh is turned by ``rot`` [3, 3] about ``centre`` [3]
+        (its frame's point, before the shift) and spins at ``spin`` [3] [rad/s]."""
         out = np.empty(6)
         vel = np.zeros((wl + 1, 3))
         vel[wl, 0] = velocity[0]
@@ -251,6 +255,14 @@ def _mesh_loop(hertz, damped, friction):
             y0 = x[k, 0] - shift[0]
             y1 = x[k, 1] - shift[1]
             y2 = x[k, 2] - shift[2]
+            if rotating:
+                # into the mesh's frame: y = rot^T (x - shift - centre) + centre
+                q0 = y0 - centre[0]
+                q1 = y1 - centre[1]
+                q2 = y2 - centre[2]
+                y0 = rot[0, 0] * q0 + rot[1, 0] * q1 + rot[2, 0] * q2 + centre[0]
+                y1 = rot[0, 1] * q0 + rot[1, 1] * q1 + rot[2, 1] * q2 + centre[1]
+                y2 = rot[0, 2] * q0 + rot[1, 2] * q1 + rot[2, 2] * q2 + centre[2]
             i = int(np.floor((y0 - lo[0]) / h))
             j = int(np.floor((y1 - lo[1]) / h))
             kk = int(np.floor((y2 - lo[2]) / h))
@@ -288,6 +300,19 @@ def _mesh_loop(hertz, damped, friction):
                     n2 = e10 * e21 - e11 * e20
                     nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
                     n0, n1, n2 = n0 / nn, n1 / nn, n2 / nn
+                if rotating:
+                    # the normal back to the world, and the surface velocity at the contact point
+                    m0 = rot[0, 0] * n0 + rot[0, 1] * n1 + rot[0, 2] * n2
+                    m1 = rot[1, 0] * n0 + rot[1, 1] * n1 + rot[1, 2] * n2
+                    m2 = rot[2, 0] * n0 + rot[2, 1] * n1 + rot[2, 2] * n2
+                    n0, n1, n2 = m0, m1, m2
+                    arm = rk - 0.5 * (rk - d)
+                    c0 = x[k, 0] - arm * n0 - shift[0] - centre[0]
+                    c1 = x[k, 1] - arm * n1 - shift[1] - centre[1]
+                    c2 = x[k, 2] - arm * n2 - shift[2] - centre[2]
+                    vel[wl, 0] = velocity[0] + spin[1] * c2 - spin[2] * c1
+                    vel[wl, 1] = velocity[1] + spin[2] * c0 - spin[0] * c2
+                    vel[wl, 2] = velocity[2] + spin[0] * c1 - spin[1] * c0
                 energy += _apply(k, wl, rk - d, n0, n1, n2, v, w, radius, mass, f, t, vel, hist, dt,
                                  stiff_n, stiff_t, mu, damp_n, damp_t, out, wall_force, hertz, damped,
                                  friction)

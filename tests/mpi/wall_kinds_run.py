@@ -4,7 +4,7 @@
     python wall_kinds_run.py OUT_DIR restart    (reads OUT_DIR/half.h5 of a full run)
 
 A frictional bed of spheres in a rotating drum (a cylinder along z), on a floor that shakes
-(``Sinusoid``), under a force-controlled lid (``Servo``), around a pyramid mesh that translates,
+(``Sinusoid``), under a force-controlled lid (``Servo``), around a pyramid mesh that translates and turns,
 and beside a plane moving along a ``Table``: ``full`` runs STEPS steps, saving ``half.h5`` at
 STEPS / 2; ``restart`` loads it and runs the second half. Rank 0 writes ``OUT_DIR/{mode}.npz``: the
 positions, velocities, spins and wall histories by gid, the lid's servo state and the wall forces.
@@ -49,7 +49,8 @@ def system():
         normals=normals, points=points, law=law, motions=motions,
         cylinders=[pardem.Cylinder((0, 0, 0), (0, 0, 1), RC, inside=True, angular_velocity=3.0)]
         if "cylinder" in kinds else None,
-        meshes=[pardem.Mesh(tris, motion=pardem.ConstantMotion((0.02, 0.0, 0.0)))] if "mesh" in kinds else None)
+        meshes=[pardem.Mesh(tris, motion=pardem.ConstantMotion((0.02, 0.0, 0.0)),
+                            rotation=((0, 0, 0), (0, 0, 1), 5.0))] if "mesh" in kinds else None)
     contacts = pardem.ContactModel("hertz_mindlin", dict(young=5e6, poisson=0.3, friction=0.4,
                                                          restitution=0.5))
     return pardem.System(pardem.Particles(pts, RD, 2500.0, velocities=rng.uniform(-0.05, 0.05, (len(pts), 3))),
