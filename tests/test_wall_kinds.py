@@ -503,3 +503,18 @@ def test_every_wall_kind_gives_the_same_bits_on_two_ranks(kinds_one_rank, tmp_pa
     # the wall forces are float sums over rows then ranks: equal to their round-off
     scale = np.abs(one["force"]).max()
     assert np.allclose(one["force"], two["force"], rtol=0, atol=1e-12 * scale)
+
+
+def test_two_d_walls_refuse_motions_out_of_the_plane(comm):
+    # in 2D a wall is a line of the plane z = 0: a motion along z would drag the disks out of it
+    def system(motion, cylinders=None):
+        walls = pardem.WallModel([[0, 1, 0]], [[0, 0, 0]], pardem.wall_law("linear", stiffness=1e5),
+                                 motions=[motion], cylinders=cylinders)
+        return pardem.System(pardem.Particles([[0.0, 2 * R]], R, RHO), walls=walls, dimension=2,
+                             cell=pardem.Cell(lo=(-1, -1), length=(2, 2), periodic=(False, False)))
+    with pytest.raises(ValueError, match="motions\\[0\\].*no z component"):
+        pardem.build(comm, system(pardem.Sinusoid((0, 0, 1e-3), 1.0)))
+    with pytest.raises(ValueError, match="cylinders\\[0\\].axis"):
+        pardem.build(comm, system(None, [Cylinder((0, 0, 0), (1, 0, 0), 0.5)]))
+    # in the plane: accepted, and a cylinder along z is a circle of the plane
+    pardem.build(comm, system(pardem.Sinusoid((1e-3, 0, 0), 1.0), [Cylinder((0, 0, 0), (0, 0, 1), 0.5)]))

@@ -600,13 +600,20 @@ def check_domain(sim, walls):
                 k = int(bad[0])
                 raise ValueError(f"{name}[{k}] = {arr[k].tolist()}{unit}: in 2D a wall is a line of the "
                                  "plane z = 0, its z component must be 0")
+    if dimension_of(sim) == 2:
+        moving = [(f"motions[{i}]", m) for i, m in enumerate(walls.motions or ()) if m is not None]
+        moving += [(f"cylinders[{i}].motion", c.motion) for i, c in enumerate(walls.cylinders)]
+        for name, m in moving:
+            if _moves_along_z(m):
+                raise ValueError(f"{name}: in 2D a wall moves in the plane z = 0, its motion must have no "
+                                 "z component")
     if walls.meshes and dimension_of(sim) == 2:
         raise ValueError("meshes: mesh walls are 3D only (in 2D a wall is a line of the plane z = 0: "
                          "use planes or a cylinder along z)")
     for i, c in enumerate(walls.cylinders):
-        if dimension_of(sim) == 2 and (abs(c.axis[2]) != 1.0 or c.motion.velocity_at(0.0)[2] != 0.0):
+        if dimension_of(sim) == 2 and abs(c.axis[2]) != 1.0:
             raise ValueError(f"cylinders[{i}].axis = {c.axis.tolist()}: in 2D a cylinder is a circle of the "
-                             "plane z = 0, its axis must be z and its motion in the plane")
+                             "plane z = 0, its axis must be z")
     cell = getattr(sim, "cell", None)
     if cell is not None and np.any(cell.periodic) and walls.meshes:
         raise ValueError("meshes: a mesh wall cannot be used in a cell with periodic axes (elements "
@@ -624,6 +631,16 @@ def check_domain(sim, walls):
             axes = "".join("xyz"[a] for a in range(3) if cell.periodic[a])
             raise ValueError(f"normals[{k}] = {n[k].tolist()}: a wall normal must have no component "
                              f"along the cell's periodic axes ({axes}): elements would wrap through it")
+
+
+def _moves_along_z(m):
+    """Whether a plane's or a cylinder's motion has a z component (a servo moves along its normal)."""
+    if isinstance(m, Servo):
+        return False
+    if isinstance(m, wall_motion.Table):
+        return bool(np.any(m.displacements[:, 2] != 0.0))
+    vec = m.amplitude if isinstance(m, wall_motion.Sinusoid) else m.velocity
+    return bool(vec[2] != 0.0)
 
 
 def _max_radius(sim):
