@@ -105,6 +105,16 @@ _EXPORTS = {
     "random_pack": ("pardem.domains.packing", "random_pack"),
     "Insert": ("pardem.engine.insertion", "Insert"),
     "Delete": ("pardem.engine.insertion", "Delete"),
+    # walls: prescribed motions, servo, cylinders, triangle meshes (STL)
+    "Cylinder": ("pardem.engine.walls", "Cylinder"),
+    "Mesh": ("pardem.engine.walls", "Mesh"),
+    "Servo": ("pardem.engine.walls", "Servo"),
+    "ConstantMotion": ("pardem.physics.wall_motion", "Constant"),
+    "Ramp": ("pardem.physics.wall_motion", "Ramp"),
+    "Sinusoid": ("pardem.physics.wall_motion", "Sinusoid"),
+    "MotionTable": ("pardem.physics.wall_motion", "Table"),
+    "read_stl": ("pardem.io.stl", "read_stl"),
+    "write_stl": ("pardem.io.stl", "write_stl"),
 }
 
 __all__ = ["__version__", *_EXPORTS]

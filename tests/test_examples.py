@@ -237,3 +237,35 @@ def test_simple_shear_gives_the_same_answer_on_two_ranks():
     assert "2 rank(s)" in two.stdout
     # reproducible lists and exact sums: the same trajectory, so the same printed friction
     assert simple_shear_friction(one.stdout) == simple_shear_friction(two.stdout)
+
+
+@pytest.fixture(scope="module")
+def drum_one_rank():
+    return run("drum.py", "--quick")
+
+
+def test_drum_flows_at_a_dynamic_angle_of_repose(drum_one_rank):
+    res = drum_one_rank
+    assert res.returncode == 0, res.stdout + res.stderr
+    # the range of the example's docstring (GDR MiDi 2004; Zhou et al. 2002; Taberlet et al. 2003)
+    beta = number(r"dynamic angle of repose " + FLOAT, res.stdout)
+    assert 15.0 < beta < 45.0
+    # the walls carry the weight of a bed in steady flow (centre of mass nearly still)
+    assert number(r"walls carry " + FLOAT, res.stdout) == pytest.approx(1.0, abs=0.02)
+    assert "PASS" in res.stdout
+
+
+@pytest.mark.mpi
+@pytest.mark.skipif(MPIEXEC is None, reason="no mpiexec")
+def test_drum_gives_the_same_angle_on_two_ranks(drum_one_rank):
+    two = run("drum.py", "--quick", ranks=2)
+    assert two.returncode == 0, two.stdout + two.stderr
+    assert "2 rank(s)" in two.stdout
+    # each grain's wall and contact loads depend on its own state: the same trajectory bits, so
+    # the centroid angle, from the gathered positions, prints the same digits
+    angle = r"dynamic angle of repose (\S+) deg"
+    one_text = re.search(angle, drum_one_rank.stdout).group(1)
+    assert re.search(angle, two.stdout).group(1) == one_text
+    # the wall forces are float sums over ranks: equal to round-off at the printed 4 digits
+    assert number(r"walls carry " + FLOAT, two.stdout) == pytest.approx(
+        number(r"walls carry " + FLOAT, drum_one_rank.stdout), abs=2e-4)

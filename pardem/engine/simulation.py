@@ -177,7 +177,10 @@ class Simulation:
             normals, offsets, velocities = p.planes(self.time + 0.5 * self.dt)
             self.plate_energy = walls.compute(p.law, e, normals, offsets, velocities, e.wall_h,
                                               self.dt, p.wall_force)
-            p.force_local[:] = -np.einsum("wd,wd->w", p.wall_force[:2], normals[:2])
+            m = len(p.force_local)
+            p.force_local[:] = -np.einsum("wd,wd->w", p.wall_force[:m], normals[:m])
+            if getattr(p, "shapes", False):    # cylinders and meshes of an API wall set
+                self.plate_energy += p.compute_shapes(e, self.time + 0.5 * self.dt, self.dt)
         if self.contacts is not None:
             self.contact_energy = self.contacts.compute(e, self.dt, with_energy)
         if self.viscous_damping > 0.0:

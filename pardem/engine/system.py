@@ -34,7 +34,7 @@ from pardem.engine.periodic_cell import PeriodicCell
 from pardem.engine.plane import PlaneConstraint, check_dimension, in_plane, plane_of
 from pardem.engine.simulation import Simulation
 from pardem.engine.state import Bonds, Elements
-from pardem.engine.walls import Walls, add_walls
+from pardem.engine.walls import Walls, add_walls, attach_servos, check_servos
 from pardem.parallel.slab_comm import SlabComm
 from pardem.parallel.slabs import Slabs, choose_axis
 from pardem.physics import walls as wall_kernels
@@ -101,18 +101,33 @@ class WallModel:
     (``pardem.physics.walls.Params``, e.g. from ``pardem.engine.walls.wall_law``).
     ``time0`` [s]: the time at which the walls pass through ``points``. ``offsets`` [w] [m]: the
     exact plane offsets ``n . x`` at ``time0`` with ``normals`` already unit (``describe`` sets it,
-    so that a restored wall is the same bits; default from ``points``)."""
+    so that a restored wall is the same bits; default from ``points``).
+    ``motions``: one per plane, None (the constant velocity), a motion of
+    ``pardem.physics.wall_motion`` (``Constant``, ``Ramp``, ``Sinusoid``, ``Table``) or a
+    force-controlled ``pardem.engine.walls.Servo`` (or their dicts); ``cylinders``: a list of
+    ``pardem.engine.walls.Cylinder``; ``meshes``: a list of ``pardem.engine.walls.Mesh``
+    (triangles from ``pardem.read_stl``). ``normals`` and ``points`` may be empty ([0, 3]) when
+    there are cylinders or meshes."""
     normals: object
     points: object
     law: wall_kernels.Params
     velocities: object = None
     time0: float = 0.0
     offsets: object = None
+    motions: object = None
+    cylinders: object = None
+    meshes: object = None
+
+    def make(self):
+        """The ``Walls`` of this model (not attached to a simulation)."""
+        return self.exact(Walls(self.normals, self.points, self.law, self.velocities, time0=self.time0,
+                                motions=_copies(self.motions), cylinders=_copies(self.cylinders),
+                                meshes=_copies(self.meshes)))
 
     def exact(self, walls):
         """Give ``walls`` (built from this model) the stored unit normals and offsets bit for bit."""
         if self.offsets is not None:
-            walls.normals = np.ascontiguousarray(self.normals, dtype=np.float64)
+            walls.normals = np.ascontiguousarray(np.reshape(self.normals, (-1, 3)), dtype=np.float64)
             walls.offsets0 = np.asarray(self.offsets, dtype=np.float64).copy()
         walls.time0 = float(self.time0)
         return walls
@@ -201,6 +216,12 @@ class System:
             walls = {"normals": _jsonable(w.normals), "points": _jsonable(w.points),
                      "velocities": _jsonable(w.velocities), "time0": float(w.time0),
                      "offsets": _jsonable(w.offsets), "law": _init_fields(w.law)}
+            # the new kinds only when present: older descriptions keep their exact dict
+            for name in ("motions", "cylinders", "meshes"):
+                items = getattr(w, name)
+                if items is not None and len(items):
+                    walls[name] = [None if m is None else (m if isinstance(m, dict) else m.to_dict())
+                                   for m in items]
         cell = None if self.cell is None else {f.name: _jsonable(getattr(self.cell, f.name))
                                                for f in fields(self.cell)}
         return {"kind": "system", "dimension": int(self.dimension),
@@ -223,13 +244,28 @@ class System:
         if d.get("walls") is not None:
             w = d["walls"]
             walls = WallModel(w["normals"], w["points"], wall_kernels.Params(**w["law"]), w["velocities"],
-                              w["time0"], w.get("offsets"))
+                              w["time0"], w.get("offsets"), w.get("motions"), w.get("cylinders"),
+                              w.get("meshes"))
         ct = d.get("contacts")
         return cls(particles=particles,
                    contacts=None if ct is None else ContactModel(ct["law"], dict(ct["params"])),
                    bonds=bonds, walls=walls, cell=None if d.get("cell") is None else Cell(**d["cell"]),
                    integration=Integration(**d["integration"]),
                    decomposition=Decomposition(**d["decomposition"]), dimension=int(d["dimension"]))
+
+
+def _copies(items):
+    """Fresh wall parts from a model's list (dicts or objects: a servo's state is per run)."""
+    if items is None or not len(items):
+        return None
+    return [None if m is None else (m if isinstance(m, dict) else m.to_dict()) for m in items]
+
+
+def _described(items):
+    """A running wall set's list as dicts (None when empty or all None: older descriptions)."""
+    if not items or all(m is None for m in items):
+        return None
+    return [None if m is None else m.to_dict() for m in items]
 
 
 def _init_fields(params):
@@ -405,7 +441,9 @@ def build(comm, system):
         w = system.walls
         if not isinstance(w, WallModel):
             raise ValueError(f"System.walls must be a WallModel, got {type(w).__name__}")
-        w.exact(add_walls(sim, w.normals, w.points, w.velocities, law=w.law, check_dt=False)).move_to(0.0)
+        w.exact(add_walls(sim, w.normals, w.points, w.velocities, law=w.law, check_dt=False,
+                          motions=_copies(w.motions), cylinders=_copies(w.cylinders),
+                          meshes=_copies(w.meshes))).move_to(0.0)
     dt_c = critical_time_step_of(sim, contacts_of=(model, r, density))
     if integ.dt is None:
         if not math.isfinite(dt_c):
@@ -420,6 +458,8 @@ def build(comm, system):
         dt = float(integ.dt)
     sim.dt = dt
     sim.dt_critical = float(dt_c)
+    if system.walls is not None:
+        check_servos(sim, sim.plates)
     sim.density = density
     sim.system = replace(system, particles=None, contacts=model,
                          bonds=None if system.bonds is None else replace(system.bonds, pairs=None),
@@ -545,7 +585,8 @@ def describe(sim):
     if isinstance(sim.plates, Walls):
         w = sim.plates
         walls = WallModel(w.normals.copy(), w.normals * w.offsets0[:, None], w.law, w.velocities.copy(), w.time0,
-                          w.offsets0.copy())
+                          w.offsets0.copy(), _described(w.motions), _described(w.cylinders),
+                          _described(w.meshes))
     elif sim.plates is not None:
         raise ValueError("describe: this simulation's plates belong to a protocol (the compression test "
                          "saves them itself); a System holds planar walls (WallModel)")
@@ -605,12 +646,14 @@ def restore(comm, system, parts, cell, density):
     walls = None
     if system.walls is not None:
         w = system.walls
-        walls = w.exact(Walls(w.normals, w.points, w.law, w.velocities, time0=w.time0))
+        walls = w.make()
     sim = Simulation(comm, parts.elements, parts.bonds, walls, integ.dt, max_speed=integ.max_speed,
                      check_every=integ.check_every, domain=parts.domain, contacts=parts.contacts, cell=cell,
                      viscous_damping=integ.viscous_damping, orientation=integ.orientation)
     if int(system.dimension) == 2:
         sim.fixes.append(PlaneConstraint(0.0))
+    if walls is not None:
+        attach_servos(sim, walls)
     sim.density = float(density)
     sim.system = replace(system, particles=None)
     return sim

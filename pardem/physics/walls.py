@@ -54,7 +54,8 @@ a wall whose normal and velocity have no z component (``pardem.engine.walls.chec
 
 History
 -------
-``history`` [n_rows, n_walls, 3] float64, indexed by element row (it migrates with the element
+``history`` [n_rows, n_walls, 3] float64 (or wider: the columns after the planes' are those of
+the set's cylinders and meshes, ``pardem.physics.curved_walls``), indexed by element row (it migrates with the element
 between ranks, like ``x``), zero where an element does not touch a wall (reset when a contact
 opens). Frictionless sets need none: pass ``new_history(params, n_rows, n_walls)``, which is
 ``[n_rows, 0, 3]`` for them.
@@ -63,7 +64,7 @@ Interface
 ---------
 ``compute(params, elements, normals, offsets, velocities, history, dt, wall_force)`` adds the wall
 loads to ``elements.f``/``elements.t`` of the owned rows ``[0, n_owned)`` only (ghost rows are
-copies), updates ``history`` there, overwrites ``wall_force`` [n_walls, 3] with this rank's force of
+copies), updates ``history`` there, overwrites ``wall_force[:n_walls]`` ([>= n_walls, 3]) with this rank's force of
 the elements **on** each wall [N] (the reaction; for a plate the compressive force along its inward
 normal is ``-wall_force[w] . normals[w]``, the ``plates.plate_force`` value) and returns the elastic
 energy ``sum 1/2 kn delta^2`` (linear) or ``2/5 fn_el delta`` (Hertz) ``+ |h|^2 / (2 kt)`` [J].
@@ -308,6 +309,22 @@ def wall_loop(law, damped, friction):
     return _wall_loop(law == "hertz", bool(damped), bool(friction))
 
 
+@njit(cache=True, error_model="numpy")
+def elastic_normal_terms(x, radius, n_owned, n0, n1, n2, offset, hertz, stiff_n):
+    """Per owned row [n_owned] the elastic normal force [N] of its contact with the plane
+    ``n . x = offset`` (``kn delta`` or ``4/3 E* sqrt(R delta) delta``; 0 without contact): the
+    terms of a servo's measure, a function of the positions only (summed exactly over ranks)."""
+    out = np.zeros(n_owned)
+    for k in range(n_owned):
+        delta = radius[k] - (n0 * x[k, 0] + n1 * x[k, 1] + n2 * x[k, 2] - offset)
+        if delta > 0.0:
+            if hertz:
+                out[k] = 4.0 / 3.0 * stiff_n * np.sqrt(radius[k] * delta) * delta
+            else:
+                out[k] = stiff_n * delta
+    return out
+
+
 # ---------------------------------------------------------------------------------------------
 # model interface (STYLE pattern 3)
 
@@ -363,14 +380,20 @@ def check_walls(params, normals, offsets, velocities, history, wall_force, n_own
     n_walls = offsets.shape[0] if offsets.ndim == 1 else -1
     if n_walls < 0 or offsets.dtype != np.float64:
         raise ValueError(f"walls offsets must be float64 [n_walls], got {offsets.dtype} {offsets.shape}")
-    for name, arr in (("normals", normals), ("velocities", velocities), ("wall_force", wall_force)):
+    for name, arr in (("normals", normals), ("velocities", velocities)):
         if arr.shape != (n_walls, 3) or arr.dtype != np.float64:
             raise ValueError(f"walls {name} must be float64 [{n_walls}, 3], got {arr.dtype} {arr.shape}")
-    width = n_walls if params.frictional else 0
-    if (history.ndim != 3 or history.shape[0] < n_owned or history.shape[1:] != (width, 3)
-            or history.dtype != np.float64):
-        raise ValueError(f"walls history must be float64 [n_rows >= {n_owned}, {width}, 3] "
-                         f"(new_history), got {history.dtype} {history.shape}")
+    # rows and columns after the planes' belong to the set's curved walls and meshes
+    if wall_force.ndim != 2 or wall_force.shape[0] < n_walls or wall_force.shape[1] != 3 \
+            or wall_force.dtype != np.float64:
+        raise ValueError(f"walls wall_force must be float64 [>= {n_walls}, 3], got {wall_force.dtype} "
+                         f"{wall_force.shape}")
+    if (history.ndim != 3 or history.shape[0] < n_owned or history.shape[2] != 3
+            or history.dtype != np.float64 or history.shape[1] < (n_walls if params.frictional else 0)
+            or (history.shape[1] and not params.frictional)):
+        width = n_walls if params.frictional else 0
+        raise ValueError(f"walls history must be float64 [n_rows >= {n_owned}, "
+                         f"{'>= ' if width else ''}{width}, 3] (new_history), got {history.dtype} {history.shape}")
     return aligned_axes(normals)
 
 
