@@ -50,11 +50,13 @@ Opening in ParaView:
 no z component; view along z (-Z button) and glyph spheres, or Glyph Type = 2D Glyph, Circle, filled.
 """
 import os
+import re
 import sys
 
 import meshio
 import numpy as np
 
+from pardem.errors import OutputError
 from pardem.physics.bond_state import BOND_INTACT
 from pardem.triggers import as_trigger
 from pardem.physics.beam_axial import elastic_axial_force
@@ -172,7 +174,7 @@ class ParaViewWriter:
     Collective: every rank of ``comm`` (a ``Communicator``) must call it at the same steps, as
     ``Simulation.run`` does. Each rank writes its piece; then, once all pieces exist, rank 0 writes
     the snapshot's .pvtu and rewrites ``pardem.pvd``. A failure on any rank raises
-    ``RuntimeError`` on every rank. Units and file layout: see the module docstring.
+    ``RuntimeError`` on every rank (``OutputError``, one, when the file system refused). Units and file layout: see the module docstring.
     """
 
     def __init__(self, directory, comm, trigger, resume_step=None, dt=None, at_end=False):
@@ -209,7 +211,7 @@ class ParaViewWriter:
         info = self.comm.allgather((n_points, error))
         failed = [f"rank {r}: {e}" for r, (_, e) in enumerate(info) if e is not None]
         if failed:
-            raise RuntimeError(f"ParaView snapshot at step {step} not written: " + "; ".join(failed))
+            raise _failure(f"ParaView snapshot at step {step} not written: " + "; ".join(failed))
 
         error = None
         if comm.is_root:
@@ -225,5 +227,16 @@ class ParaViewWriter:
         if comm.size > 1:
             error = comm.bcast(error)   # every rank waits for rank 0's files, and shares its fate
         if error is not None:
-            raise RuntimeError(f"ParaView snapshot at step {step}: rank 0 failed to write the "
-                               f".pvtu/.pvd: {error}")
+            raise _failure(f"ParaView snapshot at step {step}: rank 0 failed to write the "
+                           f".pvtu/.pvd: {error}")
+
+
+def _failure(message):
+    """The error every rank raises for a failed snapshot: ``OutputError`` (a ``RuntimeError``;
+    ``all_ranks``: the drivers end in one line, exit 4) when a rank's file system refused
+    (``OSError`` and its kinds), else ``RuntimeError``."""
+    if re.search(r"\b\w*(OSError|PermissionError|FileNotFoundError|IsADirectoryError|NotADirectoryError):", message):
+        err = OutputError(message)
+        err.all_ranks = True
+        return err
+    return RuntimeError(message)

@@ -5,6 +5,10 @@ drivers pass their own ``columns`` and ``row`` (e.g. ``dict_row(columns)`` for s
 dicts keyed by column).
 """
 import csv
+import io
+import os
+
+from pardem.errors import OutputError
 
 SERIES_COLUMNS = ("step", "time", "plate_displacement", "force_fixed", "force_moving",
                   "eps_xx", "eps_yy", "eps_zz", "eps_xy", "eps_xz", "eps_yz",
@@ -27,25 +31,53 @@ def dict_row(columns):
 
 
 class SeriesCSV:
-    """CSV file with a header line; ``append`` writes and flushes one row (so a crash keeps rows).
+    """CSV file with a header line; ``append`` writes one row at once (so a crash keeps rows).
 
     columns: the header; row: ``row(sample) -> values`` in the columns' order (default: compress's
     columns of a ``Reducer.sample`` dict). Floats are written with ``repr`` (they read back exactly).
+    A failed write (disk full, permission) raises ``OutputError`` naming the file; the file then
+    holds the rows written before (the last one possibly cut) and takes no more.
     """
 
     def __init__(self, path, columns=SERIES_COLUMNS, row=sample_row):
         self.path = path
         self.columns, self.row = tuple(columns), row
-        self._fh = open(path, "w", newline="")
-        self._w = csv.writer(self._fh)
-        self._w.writerow(self.columns)
+        self.failed = False
+        try:
+            self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        except OSError as err:
+            raise _output_error(path, err) from None
+        self._write([self.columns])
 
     def append(self, sample):
-        self._w.writerow([repr(float(v)) if isinstance(v, float) else v for v in self.row(sample)])
-        self._fh.flush()
+        self._write([[repr(float(v)) if isinstance(v, float) else v for v in self.row(sample)]])
+
+    def _write(self, rows):
+        # rows go to the file descriptor in one write each, with no buffer of Python's that a
+        # failed write would leave to be written again at close (and fail again at exit)
+        if self.failed:
+            raise OutputError(f"cannot write {self.path}: an earlier write failed")
+        text = io.StringIO(newline="")
+        csv.writer(text).writerows(rows)
+        data = text.getvalue().encode()
+        try:
+            while data:
+                data = data[os.write(self._fd, data):]
+        except OSError as err:
+            self.failed = True
+            raise _output_error(self.path, err) from None
 
     def close(self):
-        self._fh.close()
+        if getattr(self, "_fd", None) is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    __del__ = close
+
+
+def _output_error(path, err):
+    """``OutputError`` of a failed write of ``path`` (one line: the file and the OS's reason)."""
+    return OutputError(f"cannot write {path}: {err.strerror or err}")
 
 
 def read_series(path, columns=SERIES_COLUMNS):
