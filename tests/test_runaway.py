@@ -75,7 +75,7 @@ def test_the_bound_follows_the_time_step_and_the_plates():
     assert sim.speed_limit == pytest.approx(1e4)           # max_speed is the cap
 
     class Plates:
-        speed = 2e3
+        speed = 200.0
     sim.set_dt(1e-6)
     sim.plates = Plates()
     sim._set_speed_limit()
