@@ -32,7 +32,7 @@ from pardem.config import DeckError, choice, describe
 from pardem.io.deck_file import load_deck
 from pardem.engine import stop
 from pardem.errors import InstabilityError, Interrupted, OutputError
-from pardem.io import run_folder
+from pardem.io import checkpoint_writer, run_folder
 from pardem.io.records import header_difference, read_records, read_study_header
 from pardem.parallel import layout, watchdog
 from pardem.parallel.communicator import exit_now, report_and_abort
@@ -111,6 +111,7 @@ def run_driver(comm, run, args):
     with one line and 128 + N; a result that cannot be written with one line and 4; any other
     exception is printed and aborts every rank (none hangs)."""
     stop.clear()
+    checkpoint_writer.forget()
     previous = stop_signals(comm)
     watchdog.start(comm, watchdog.DEFAULT_SECONDS)
     try:
@@ -140,19 +141,23 @@ def run_driver(comm, run, args):
     except InstabilityError as err:
         if comm.is_root:
             sys.stderr.write(f"pardem: error: the run became unstable: {err}; reduce the time step or check "
-                             f"the stiffness and damping; the last checkpoint (if any) is intact\n")
+                             f"the stiffness and damping; {checkpoints_line(args)}\n")
         raise SystemExit(EXIT_UNSTABLE)
     except (OutputError, OSError) as err:
         reason = output_failure(err)
         if reason is None:
             report_and_abort(comm, err)
+        # a write every rank failed together (a checkpoint, ParaView, the output folder) raises on
+        # every rank: rank 0 writes the line and all exit; a write of one rank alone (rank 0's
+        # series, summary, plots) leaves the others waiting in their next collective: that rank
+        # writes the line and ends the job
         everywhere = getattr(err, "all_ranks", False) or comm.size == 1
         if comm.is_root or not everywhere:
-            who = "" if everywhere else f"rank {comm.rank}: "
-            sys.stderr.write(f"pardem: error: {who}cannot write the results: {reason}; the checkpoints "
-                             f"written before are kept\n")
+            who = "" if comm.is_root else f"rank {comm.rank}: "
+            sys.stderr.write(f"pardem: error: {who}cannot write the results: {reason}; "
+                             f"{checkpoints_line(args)}\n")
         if not everywhere:
-            comm.abort(EXIT_OUTPUT)   # the other ranks may be waiting for this one
+            quiet_abort(comm, EXIT_OUTPUT)
         raise SystemExit(EXIT_OUTPUT)
     except Exception as exc:  # noqa: BLE001 - any other failure must end every rank
         report_and_abort(comm, exc)
@@ -161,6 +166,31 @@ def run_driver(comm, run, args):
         run_folder.release_all()
         for signum, handler in previous.items():
             signal.signal(signum, handler)
+
+
+def checkpoints_line(args):
+    """What a user can restart from, truly: the newest checkpoint this run wrote
+    (``pardem.io.checkpoint_writer.newest``), else the one it restarted from, else that there is
+    none (said by the drivers that write checkpoints)."""
+    writer, newest = checkpoint_writer.newest()
+    writer = writer or hasattr(args, "steps")     # a driver of one restartable run, before its writer exists
+    restart = getattr(args, "restart", None)
+    if newest:
+        return f"the last checkpoint written, {newest}, is intact: restart with --restart {newest}"
+    if restart and writer:
+        return f"this run wrote no checkpoint; the one it restarted from, {restart}, is intact"
+    if writer:
+        return "no checkpoint was written (nothing to restart from)"
+    return "the files written before are kept"
+
+
+def quiet_abort(comm, code):
+    """End every rank with ``code`` (``MPI_Abort``) after this rank's line, without MPICH's own
+    "Abort(code) on node ..." line: stderr is pointed at /dev/null once the line is out."""
+    sys.stderr.flush()
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 2)
+    comm.abort(code)     # waits ABORT_GRACE_SECONDS: the launcher forwards the line meanwhile
 
 
 def output_failure(err):

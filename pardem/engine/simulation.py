@@ -82,11 +82,22 @@ def _trigger_of(op):
     return as_trigger(op.trigger, f"trigger of {type(op).__name__}")
 
 
+# the largest displacement of an element in one step, as a fraction of the smallest radius: more
+# is a runaway, not motion the step resolves (docs/physics.md, "Stability check")
+STEP_DISPLACEMENT = 0.1
+# ... unless the loading itself drives the elements that fast: a plate moving at v makes speeds of
+# the order of v, never this many times more
+LOADING_SPEEDS = 10.0
+
+
 class Simulation:
     """Bonded and contacting elements (between plates, or in a periodic cell) on one rank.
 
-    dt [s] must already be checked against the critical step. ``max_speed`` [m/s] is the speed
-    above which the run is declared unstable (default: far above any physical DEM speed).
+    dt [s] must already be checked against the critical step. The run is declared unstable when
+    an element moves more than ``STEP_DISPLACEMENT`` of the smallest radius in one step
+    (``|v| dt``, checked at every step of ``run``; or more than ``LOADING_SPEEDS`` times the
+    plates' speed, if that is more), or faster than ``max_speed`` [m/s] (default: far above any
+    physical DEM speed).
     Optional parts: ``plates`` (``state.Plates``), ``contacts`` (``pardem.engine.contacts.Contacts``),
     ``cell`` (``pardem.engine.periodic_cell.PeriodicCell``), ``viscous_damping`` rate C [1/s] (global
     drag ``-C m v``, ``-C I w``, for sample preparation).
@@ -111,6 +122,8 @@ class Simulation:
         self.bond_energy = 0.0
         self.plate_energy = 0.0
         self.max_speed2 = float(max_speed) ** 2
+        self._speed_limit2 = self.max_speed2    # with the displacement bound once ``run`` knows r_min
+        self._r_min = None              # the smallest radius [m] over ranks (``run``)
         self.check_every = int(check_every)
         self._unstable = False
         self.seconds_computing = 0.0   # in the kernels (communication excluded)
@@ -267,7 +280,7 @@ class Simulation:
             self.cell.control(self.stress, self.dt)
         vmax2 = kick(e.v, e.w, e.f, e.t, e.inv_mass, e.inv_inertia, self.dt, e.n_owned)
         self.seconds_computing += (t1 - t0) + (_time.perf_counter() - t2)
-        if not vmax2 <= self.max_speed2:
+        if not vmax2 <= self._speed_limit2:
             self._unstable = True
         self.step_count += 1
         # not a running sum: no drift, exact on restart
@@ -280,6 +293,23 @@ class Simulation:
         responsible for its stability. Time stays continuous."""
         self._clock = (self.step_count, self.time)
         self.dt = float(dt)
+        self._set_speed_limit()
+
+    def _set_speed_limit(self):
+        """The speed above which a step is a runaway [m/s], squared: ``max_speed``, and, once
+        ``run`` has measured ``r_min``, ``STEP_DISPLACEMENT r_min / dt`` (or ``LOADING_SPEEDS``
+        times the plates' speed, if more) when that is less."""
+        limit2 = self.max_speed2
+        if self._r_min is not None and self.dt > 0.0:
+            loading = LOADING_SPEEDS * abs(float(getattr(self.plates, "speed", 0.0) or 0.0))
+            limit2 = min(limit2, max(STEP_DISPLACEMENT * self._r_min / self.dt, loading) ** 2)
+        self._speed_limit2 = limit2
+
+    @property
+    def speed_limit(self):
+        """The speed [m/s] above which the run is declared unstable (``STEP_DISPLACEMENT`` of the
+        smallest radius per step, at most ``max_speed``); ``max_speed`` before the first ``run``."""
+        return float(np.sqrt(self._speed_limit2))
 
     @property
     def unstable(self):
@@ -308,8 +338,10 @@ class Simulation:
                 unstable, signum = self.comm.any(self._unstable), 0
         if unstable:
             raise InstabilityError(
-                f"at step {self.step_count} (t = {self.time:.6g} s): "
-                "NaN or speed above the limit (or a non-finite position, velocity, force or state)")
+                f"at step {self.step_count} (t = {self.time:.6g} s): NaN or speed above the limit "
+                f"({self.speed_limit:.4g} m/s: {STEP_DISPLACEMENT:g} of the smallest radius per step or "
+                f"{LOADING_SPEEDS:g} times the plates' speed, at most max_speed; or a non-finite position, "
+                f"velocity, force or state)")
         if signum:
             raise Interrupted(signum, self.step_count)
 
@@ -374,6 +406,12 @@ class Simulation:
         operations = list(self.operations) + list(operations)
         triggers = [_trigger_of(op) for op in operations]
         at_end = [bool(getattr(op, "at_end", False)) for op in operations]
+        e = self.elements
+        # collective, every run: a script may change radii (``particles.set``) between runs
+        self._r_min = float(self.comm.min(float(e.radius[:e.n_owned].min()) if e.n_owned else np.inf))
+        if not np.isfinite(self._r_min):
+            self._r_min = None
+        self._set_speed_limit()
         if self.step_count == 0 and not self.initial_forces:
             if self.contacts is not None and self.domain is None and self.contacts.vl.builds == 0:
                 self.rebuild_contacts()

@@ -511,9 +511,15 @@ def plane_cell(box_lo, box_length, periodic, radii, thickness=None):
     t = 2.0 * float(np.mean(radii)) if thickness is None else float(thickness)
     if not (np.isfinite(t) and t > 0.0):
         raise ValueError(f"Cell.thickness must be a finite length > 0 [m], got {thickness!r}")
-    lo = np.asarray(box_lo, dtype=np.float64)
-    edge = np.asarray(box_length, dtype=np.float64)
-    per = np.asarray(periodic, dtype=bool)
+    arrays = []
+    for name, value, dtype in (("lo", box_lo, np.float64), ("length", box_length, np.float64),
+                               ("periodic", periodic, bool)):
+        try:
+            arrays.append(np.asarray(value, dtype=dtype))
+        except (TypeError, ValueError):
+            raise ValueError(f"Cell.{name} must hold 2 or 3 {'booleans' if dtype is bool else 'numbers'} "
+                             f"in 2D, got {value!r:.80}") from None
+    lo, edge, per = arrays
     for name, a in (("lo", lo), ("length", edge), ("periodic", per)):
         if a.shape not in ((2,), (3,)):
             raise ValueError(f"Cell.{name} must hold 2 or 3 entries in 2D, got shape {a.shape}")

@@ -42,7 +42,7 @@ to disk, then renamed. A run killed during a write leaves the previous checkpoin
 ``.tmp`` file that nothing reads. With parallel h5py (``driver="mpio"``) all ranks write their blocks
 collectively; without it the ranks take turns writing the same file. An OS error (disk full,
 permission) removes the ``.tmp``, keeps the earlier checkpoints and raises ``OutputError`` on
-every rank.
+every rank (``all_ranks``).
 """
 import ctypes
 import errno
@@ -232,8 +232,9 @@ def _collective(comm, path, tmp, fn):
             os.remove(tmp)
         except OSError:
             pass
-    raise OutputError(f"cannot write checkpoint {path}: {first[1]} (rank {first[0]}); "
-                      f"the earlier checkpoints are kept")
+    err = OutputError(f"cannot write checkpoint {path}: {first[1]}" + (f" (rank {first[0]})" if comm.size > 1 else ""))
+    err.all_ranks = True       # raised on every rank: no abort needed (pardem.drivers.cli)
+    raise err
 
 
 _NO_FALLOCATE = (errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL, errno.ENODEV)
@@ -299,6 +300,20 @@ def _held(comm, tmp, nbytes):
     error = comm.bcast(error)
     if error is not None:
         raise OSError(*error)
+
+
+def hold_space(path, nbytes):
+    """``_hold`` for the other HDF5 writers of ``pardem.io`` (the series file before a flush)."""
+    _hold(path, nbytes)
+
+
+def release_space(path, nbytes):
+    """``_release`` of the blocks ``hold_space`` allocated past the end of file ``path``."""
+    fd = os.open(path, os.O_WRONLY)
+    try:
+        _release(fd, nbytes)
+    finally:
+        os.close(fd)
 
 
 def _release(fd, nbytes):

@@ -28,6 +28,22 @@ DECK_SECTION = {
 }
 
 
+# what this process's checkpoint writers did (the drivers' failure lines say which checkpoint a
+# user can restart from): whether a writer exists, and the newest checkpoint written
+_record = {"writer": False, "newest": None}
+
+
+def forget():
+    """Start a new record (``pardem.drivers.cli.run_driver``, at the start of a run)."""
+    _record.update(writer=False, newest=None)
+
+
+def newest():
+    """``(writer, path)``: whether a ``CheckpointWriter`` was made since ``forget``, and the newest
+    checkpoint one of them wrote (complete and verified on restart; None if none)."""
+    return _record["writer"], _record["newest"]
+
+
 class CheckpointWriter:
     """Operation writing checkpoints every ``every_steps`` steps and/or ``every_seconds`` seconds.
 
@@ -51,6 +67,7 @@ class CheckpointWriter:
         self.last_time = time.monotonic()
         self.last_step = int(start_step)
         self.written = []
+        _record["writer"] = True
 
     def __call__(self, sim):
         due = self.every_steps > 0 and sim.step_count % self.every_steps == 0
@@ -62,8 +79,9 @@ class CheckpointWriter:
     def write(self, sim):
         """Write a checkpoint of the current step now (collective), unless one exists already.
 
-        Raises InstabilityError (every rank) for a state holding a NaN or an infinity, OutputError
-        (every rank; the ``.tmp`` removed, the earlier checkpoints kept) for an OS error."""
+        Raises InstabilityError (every rank) for a state holding a NaN or an infinity or a runaway
+        speed (``Simulation.check_stability``), OutputError (every rank, ``all_ranks``; the
+        ``.tmp`` removed, the earlier checkpoints kept) for an OS error."""
         if self.written and self.last_step == sim.step_count:
             return
         # never write (and keep) the state of a run that blew up: the collective check of every
@@ -79,7 +97,9 @@ class CheckpointWriter:
                 error = f"cannot create the checkpoint directory {self.directory}: {err.strerror or err}"
         error = comm.bcast(error)
         if error:
-            raise OutputError(error)
+            err = OutputError(error)
+            err.all_ranks = True       # raised on every rank: no abort needed (pardem.drivers.cli)
+            raise err
         path = os.path.join(self.directory, checkpoint.checkpoint_name(sim.step_count))
         groups, series, attrs = self.payload()
         checkpoint.write_checkpoint(path, comm, groups, series, attrs, self.mode)
@@ -87,5 +107,6 @@ class CheckpointWriter:
         if comm.is_root:
             checkpoint.prune(self.written, self.keep)
         self.written = self.written[-self.keep:]
+        _record["newest"] = path
         self.last_time = time.monotonic()
         self.last_step = sim.step_count

@@ -78,14 +78,14 @@ Opening in ParaView:
 no z component; view along z (-Z button) and glyph spheres, or Glyph Type = 2D Glyph, Circle, filled.
 """
 import os
-import sys
-
 import re
+import sys
 import xml.etree.ElementTree as ET
 
 import meshio
 import numpy as np
 
+from pardem.errors import OutputError
 from pardem.io.contact_writer import coordination as contact_coordination, gather_contacts
 from pardem.physics.bond_state import BOND_INTACT
 from pardem.triggers import as_trigger
@@ -276,7 +276,7 @@ class ParaViewWriter:
     ``Simulation.run`` does. Each rank writes its piece; then, once all pieces exist, rank 0 writes
     the snapshot's .pvtu, the contact network (``contacts``, when the simulation has contacts) and
     the cell (when it has a periodic cell), and rewrites the collections. A failure on any rank
-    raises ``RuntimeError`` on every rank. Units and file layout: see the module docstring.
+    raises ``RuntimeError`` on every rank (``OutputError``, one, when the file system refused). Units and file layout: see the module docstring.
     ``resume_step`` [steps], ``dt`` [s], ``previous`` (the earlier run's ParaView folder): a
     restarted run's collections continue the earlier ones (module docstring).
     """
@@ -350,7 +350,7 @@ class ParaViewWriter:
         info = self.comm.allgather((n_points, error))
         failed = [f"rank {r}: {e}" for r, (_, e) in enumerate(info) if e is not None]
         if failed:
-            raise RuntimeError(f"ParaView snapshot at step {step} not written: " + "; ".join(failed))
+            raise _failure(f"ParaView snapshot at step {step} not written: " + "; ".join(failed))
         network = None
         if self.contacts and getattr(sim, "contacts", None) is not None:
             network = gather_contacts(sim)     # collective
@@ -378,11 +378,22 @@ class ParaViewWriter:
         if comm.size > 1:
             error = comm.bcast(error)   # every rank waits for rank 0's files, and shares its fate
         if error is not None:
-            raise RuntimeError(f"ParaView snapshot at step {step}: rank 0 failed to write the "
-                               f".pvtu/.pvd: {error}")
+            raise _failure(f"ParaView snapshot at step {step}: rank 0 failed to write the "
+                           f".pvtu/.pvd: {error}")
 
     def _write_mesh(self, mesh, name):
         path = os.path.join(self.directory, name)
         tmp = f"{path}.tmp{os.getpid()}"
         mesh.write(tmp, file_format="vtu")
         os.replace(tmp, path)
+
+
+def _failure(message):
+    """The error every rank raises for a failed snapshot: ``OutputError`` (a ``RuntimeError``;
+    ``all_ranks``: the drivers end in one line, exit 4) when a rank's file system refused
+    (``OSError`` and its kinds), else ``RuntimeError``."""
+    if re.search(r"\b\w*(OSError|PermissionError|FileNotFoundError|IsADirectoryError|NotADirectoryError):", message):
+        err = OutputError(message)
+        err.all_ranks = True
+        return err
+    return RuntimeError(message)

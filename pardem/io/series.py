@@ -13,6 +13,10 @@ A restarted driver rewrites its series files from the rows its checkpoint kept a
 its own: the last run's files are the whole run's series, equal to an uninterrupted run's.
 """
 import csv
+import io
+import os
+
+from pardem.errors import OutputError
 
 SERIES_COLUMNS = ("step", "time", "plate_displacement", "force_fixed", "force_moving",
                   "eps_xx", "eps_yy", "eps_zz", "eps_xy", "eps_xz", "eps_yz",
@@ -50,12 +54,14 @@ def column_name(text):
 
 
 class SeriesCSV:
-    """CSV file with a header line; ``append`` writes and flushes one row (so a crash keeps rows).
+    """CSV file with a header line; ``append`` writes one row at once (so a crash keeps rows).
 
     columns: the column names; row: ``row(sample) -> values`` in the columns' order (default:
     compress's columns of a ``Reducer.sample`` dict); units: one per column for the header
     (``header``; default compress's ``SERIES_UNITS`` with its default columns, else none). Floats
-    are written with ``repr`` (they read back exactly).
+    are written with ``repr`` (they read back exactly). A failed write (disk full, permission)
+    raises ``OutputError`` naming the file; the file then holds the rows written before (the last
+    one possibly cut) and takes no more.
     """
 
     def __init__(self, path, columns=SERIES_COLUMNS, row=sample_row, units=None):
@@ -64,16 +70,42 @@ class SeriesCSV:
         if units is None and self.columns == SERIES_COLUMNS:
             units = SERIES_UNITS
         names = header(self.columns, units)
-        self._fh = open(path, "w", newline="")
-        self._w = csv.writer(self._fh)
-        self._w.writerow(names)
+        self.failed = False
+        try:
+            self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        except OSError as err:
+            raise _output_error(path, err) from None
+        self._write([names])
 
     def append(self, sample):
-        self._w.writerow([repr(float(v)) if isinstance(v, float) else v for v in self.row(sample)])
-        self._fh.flush()
+        self._write([[repr(float(v)) if isinstance(v, float) else v for v in self.row(sample)]])
+
+    def _write(self, rows):
+        # rows go to the file descriptor in one write each, with no buffer of Python's that a
+        # failed write would leave to be written again at close (and fail again at exit)
+        if self.failed:
+            raise OutputError(f"cannot write {self.path}: an earlier write failed")
+        text = io.StringIO(newline="")
+        csv.writer(text).writerows(rows)
+        data = text.getvalue().encode()
+        try:
+            while data:
+                data = data[os.write(self._fd, data):]
+        except OSError as err:
+            self.failed = True
+            raise _output_error(self.path, err) from None
 
     def close(self):
-        self._fh.close()
+        if getattr(self, "_fd", None) is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    __del__ = close
+
+
+def _output_error(path, err):
+    """``OutputError`` of a failed write of ``path`` (one line: the file and the OS's reason)."""
+    return OutputError(f"cannot write {path}: {err.strerror or err}")
 
 
 def read_series_rows(path):

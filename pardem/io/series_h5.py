@@ -11,18 +11,24 @@ HDF5 flush) every ``flush_rows`` rows or when ``flush_seconds`` have passed sinc
 or the interpreter exits normally). A hard crash (SIGKILL, ``os._exit``, an ``MPI_Abort`` from
 another rank) therefore loses at most the rows appended since the last flush: fewer than
 ``flush_rows`` rows, or ``flush_seconds`` of them. The file on disk always holds a prefix of the
-rows appended. A restarted run does not read this file: it rewrites it from the rows its checkpoint
+rows appended. A full disk or a denied write raises ``OutputError`` (one line naming the file)
+before HDF5 writes anything (the space a flush needs is held first), and the writer writes no more;
+the file keeps the rows flushed before and closes cleanly. A restarted run does not read this file: it rewrites it from the rows its checkpoint
 kept (``samples``).
 
 Written with h5py's default (serial) driver by one process: plain h5py reads it, e.g.
 ``h5py.File("series.h5")["force_fixed"][:]``.
 """
+import os
+import re
 import time
 import weakref
 
 import h5py
 import numpy as np
 
+from pardem.errors import OutputError
+from pardem.io.checkpoint import hold_space, release_space
 from pardem.io.series import SERIES_COLUMNS, SERIES_UNITS, sample_row
 
 DESCRIPTION = ("pardem time series: one row per sample of the plate displacement, the global plate "
@@ -63,7 +69,11 @@ class SeriesH5:
         self.path = path
         self.row = row
         self.flush_rows, self.flush_seconds = int(flush_rows), float(flush_seconds)
-        self._f = h5py.File(path, "w")
+        self._failed = []      # shared with the finalizer: a failed write ends all writing
+        try:
+            self._f = h5py.File(path, "w")
+        except OSError as err:
+            raise OutputError(f"cannot write {path}: {_reason(err)}") from None
         try:
             self._f.attrs["columns"] = list(columns)
             self._f.attrs["description"] = description
@@ -75,13 +85,15 @@ class SeriesH5:
                 self._ds.append(ds)
             self._pending = [row(s) for s in samples]
             self.n_rows = len(self._pending)
-            _write(self._f, self._ds, self._pending)
+            _write(self._f, self._ds, self._pending, self._failed)
         except BaseException:
-            self._f.close()
+            if self._f.id.valid:
+                self._f.close()     # a failed write (OutputError) detached it already
             raise
         self._last_flush = time.monotonic()
         # the buffered rows reach the file even when close is never called (no reference to self)
-        self._finalizer = weakref.finalize(self, _write_and_close, self._f, self._ds, self._pending)
+        self._finalizer = weakref.finalize(self, _write_and_close, self._f, self._ds, self._pending,
+                                           self._failed)
 
     def append(self, sample):
         """Buffer one row; write the buffer when it holds ``flush_rows`` rows or the last flush is
@@ -95,7 +107,7 @@ class SeriesH5:
     def flush(self):
         """Write the buffered rows and flush the file (a checkpoint of the run may call it)."""
         if self._f.id.valid:
-            _write(self._f, self._ds, self._pending)
+            _write(self._f, self._ds, self._pending, self._failed)
         self._last_flush = time.monotonic()
 
     def close(self):
@@ -109,24 +121,85 @@ class SeriesH5:
         self.close()
 
 
-def _write(f, datasets, rows):
-    """Append ``rows`` (emptied in place) to ``datasets``: one resize and one write per column."""
-    if rows:
-        n0 = datasets[0].shape[0] if datasets else 0
-        n1 = n0 + len(rows)
-        for k, ds in enumerate(datasets):
-            ds.resize((n1,))
-            ds[n0:n1] = np.array([r[k] for r in rows], dtype=ds.dtype)
-        rows.clear()
-    f.flush()
+def _flush_bytes(n0, n1, datasets):
+    """An upper bound of the bytes a flush of rows ``n0`` to ``n1`` adds to the file: per column,
+    the chunks these rows start (``CHUNK_ROWS`` rows each, allocated whole when first written)
+    and 3 KiB for the chunk index they may grow (a v1 B-tree node of HDF5, 2,096 bytes), plus
+    16 KiB for the file's own metadata (object headers, superblock; about 10 KiB for a new file of
+    14 columns)."""
+    new = -(-n1 // CHUNK_ROWS) - -(-n0 // CHUNK_ROWS)
+    per_column = [new * CHUNK_ROWS * ds.dtype.itemsize + (3072 if new else 0) for ds in datasets]
+    return sum(per_column) + 16384
 
 
-def _write_and_close(f, datasets, rows):
-    if f.id.valid:
+def _write(f, datasets, rows, failed):
+    """Append ``rows`` (emptied in place) to ``datasets``: one resize and one write per column.
+
+    The disk space the write may take is held in the file first (``checkpoint.hold_space``): a
+    full disk or a quota then fails here, before HDF5 writes anything, and the file keeps the
+    rows flushed before and still closes (HDF5 1.10 crashed closing a file whose write had
+    failed). ``OutputError`` names the file; ``failed`` (a list) records it, and nothing is
+    written afterwards."""
+    if failed:
+        raise OutputError(f"cannot write the series: an earlier write failed ({failed[0]})")
+    path = f.filename
+    n0 = datasets[0].shape[0] if datasets else 0
+    try:
+        size = os.path.getsize(path)
+        nbytes = size + _flush_bytes(n0, n0 + len(rows), datasets)
+        hold_space(path, nbytes)
+    except OSError as err:
+        failed.append(_reason(err))
+        _detach(f)
+        raise OutputError(f"cannot write {path}: {failed[0]}") from None
+    try:
+        if rows:
+            n1 = n0 + len(rows)
+            for k, ds in enumerate(datasets):
+                ds.resize((n1,))
+                ds[n0:n1] = np.array([r[k] for r in rows], dtype=ds.dtype)
+            rows.clear()
+        f.flush()
+    except (OSError, RuntimeError) as err:
+        # HDF5 failed inside (a file system without fallocate, or more than the bound): its state
+        # cannot be flushed or closed again (HDF5 1.10 crashes at the interpreter's exit)
+        failed.append(_reason(err))
+        _detach(f)
+        raise OutputError(f"cannot write {path}: {failed[0]}") from None
+    release_space(path, nbytes)
+
+
+def _reason(err):
+    """The OS's reason of an h5py or os error, in one line."""
+    text = str(err)
+    m = re.search(r"error message = '([^']*)'", text)
+    if m:
+        return m.group(1)
+    return getattr(err, "strerror", None) or (text.splitlines()[0] if text else type(err).__name__)
+
+
+def _detach(f):
+    """Close ``f`` after a failed write: its descriptor is first pointed at /dev/null, so the file
+    on disk stays as its last successful flush left it (a consistent file of the rows flushed
+    then) and closing it writes nothing there (nor crashes, as closing a file whose write failed
+    did)."""
+    try:
+        fd = f.id.get_vfd_handle()
+        null = os.open(os.devnull, os.O_RDWR)
+        os.dup2(null, fd)
+        os.close(null)
+        f.close()
+    except Exception:   # noqa: BLE001 - best effort: the write already failed and is reported
+        pass
+
+
+def _write_and_close(f, datasets, rows, failed):
+    if f.id.valid and not failed:     # a failed write closed it already (``_detach``)
         try:
-            _write(f, datasets, rows)
+            _write(f, datasets, rows, failed)
         finally:
-            f.close()
+            if f.id.valid:
+                f.close()
 
 
 def read_series_h5(path):

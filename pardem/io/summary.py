@@ -5,6 +5,8 @@ import os
 
 import numpy as np
 
+from pardem.errors import OutputError
+
 
 def _plain(obj):
     if isinstance(obj, dict):
@@ -21,16 +23,26 @@ def _plain(obj):
 
 
 def write_json(path, data):
-    tmp = f"{path}.tmp"
-    with open(tmp, "w") as fh:
-        json.dump(_plain(data), fh, indent=2, allow_nan=False)
-        fh.write("\n")
-    os.replace(tmp, path)
+    """Write ``data`` as JSON to ``path`` atomically; ``OutputError`` (one line naming the file) if
+    the file system refuses (disk full, permission), the temporary file removed."""
+    _atomic(path, lambda fh: (json.dump(_plain(data), fh, indent=2, allow_nan=False), fh.write("\n")))
 
 
 def write_text(path, text):
-    """Write ``text`` to ``path`` atomically (a deck the calibration wrote, ...)."""
+    """Write ``text`` to ``path`` atomically (a deck the calibration wrote, ...); ``OutputError``
+    as ``write_json``."""
+    _atomic(path, lambda fh: fh.write(text))
+
+
+def _atomic(path, fill):
     tmp = f"{path}.tmp"
-    with open(tmp, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w") as fh:
+            fill(fh)
+        os.replace(tmp, path)
+    except OSError as err:
+        try:
+            os.remove(tmp)
+        except OSError:
+            pass
+        raise OutputError(f"cannot write {path}: {err.strerror or err}") from None

@@ -28,6 +28,7 @@ How to add a law
 """
 from typing import Protocol
 
+import dataclasses
 import numpy as np
 
 from pardem.physics import hertz_mindlin, hertz_mindlin_rolling, linear_contact
@@ -103,6 +104,10 @@ def law_params(name, params):
         raise ValueError(f"params of contact law {name!r} must be a dict of "
                          f"{row.__name__.rsplit('.', 1)[-1]}.Params keywords (names as strings), got "
                          f"{short(params)}")
+    missing = [f.name for f in dataclasses.fields(row.Params) if f.init and f.name not in params
+               and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING]
+    if missing:
+        raise ValueError(f"params of contact law {name!r}: missing {', '.join(missing)}")
     return row.Params(**params)
 
 
