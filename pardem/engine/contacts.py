@@ -39,6 +39,7 @@ from pardem.parallel import exact_sum
 from pardem.physics import exact_accumulate as xa
 from pardem.physics.contact_frame import NO_SHIFT
 from pardem.physics.neighbours import VerletList, max_displacement2
+from pardem.physics.pair_lists import carry_history, order_by_key, shift_metres_into
 from pardem.physics.timestep import contact_stiffness
 
 KEY_BASE = np.int64(1) << np.int64(31)
@@ -154,8 +155,6 @@ class Contacts:
     def rebuild(self, elements, bonds=None, table=None):
         """New list from the current rows; history looked up in ``table`` (default: the old list)."""
         e = elements
-        if table is None:
-            table = self.table()
         if e.gid.size and int(e.gid.max()) >= int(KEY_BASE):
             raise ValueError("element gids must be below 2^31 for the contact keys")
         kw = {}
@@ -164,21 +163,30 @@ class Contacts:
             kw = {"box_lo": self.cell.lo, "box_hi": self.cell.hi}
         self.vl.rebuild(e.x, e.radius, e.gid, e.n_owned, e.n_total, **kw)
         pairs, shifts = self.vl.pairs, self.vl.shifts
-        keys = pair_keys(e.gid[pairs[:, 0]], e.gid[pairs[:, 1]])
+        if self.reproducible:
+            # key order (the keys are unique: the order of a sort of the keys), in O(n)
+            i, j, shifts, keys = order_by_key(pairs, shifts, e.gid, e.n_total)
+        else:
+            i, j = pairs[:, 0], pairs[:, 1]
+            keys = pair_keys(e.gid[i], e.gid[j])
         if bonds is not None and bonds.n:
             acting = bonds.intact    # a broken bond's pair interacts by contact
             keep = ~np.isin(keys, pair_keys(bonds.gid_i[acting], bonds.gid_j[acting]))
-            pairs, shifts, keys = pairs[keep], shifts[keep], keys[keep]
-        table_keys = pair_keys(table["gid_i"], table["gid_j"])
+            i, j, shifts, keys = i[keep], j[keep], shifts[keep], keys[keep]
+        if table is None and self.reproducible:   # the previous list, in key order
+            table_keys, table_history = self.keys, self.history
+        else:
+            table = self.table() if table is None else table
+            table_keys, table_history = pair_keys(table["gid_i"], table["gid_j"]), table["history"]
         if len(table_keys):
-            must = self.law.persistent_rows(table["history"])
+            must = self.law.persistent_rows(table_history)
             if np.any(must):   # e.g. an intact cement whose spheres moved beyond the reach
                 self.lost += int(np.count_nonzero(~np.isin(np.unique(table_keys[must]), keys)))
-        if self.reproducible:
-            order = np.argsort(keys, kind="stable")
-            pairs, shifts, keys = pairs[order], shifts[order], keys[order]
-        self.adopt(pairs[:, 0], pairs[:, 1], shifts, keys,
-                   lookup(keys, table_keys, table["history"], self.width))
+        if self.reproducible:        # a merge of two key-ordered sequences
+            history = carry_history(keys, table_keys, table_history, self.width)
+        else:
+            history = lookup(keys, table_keys, table_history, self.width)
+        self.adopt(i, j, shifts, keys, history)
         if self.cell is not None:
             self.cell.strain_since_build = 0.0
 
@@ -240,8 +248,9 @@ class Contacts:
         unless a servo reads them: ``stress_ready``)."""
         rate = None
         if self.periodic:
-            if self.cell.deforming:
-                self.shift = self.cell.shift_metres(self.shifts)
+            if self.cell.deforming:     # in place: the same products as cell.shift_metres
+                shift_metres_into(self.shifts, np.where(self.cell.periodic, self.cell.length, 0.0),
+                                  self.shift)
             rate = self.cell.rate
         self.sums[:] = 0.0
         # exact sums when something may read them: a servo (every step), or an operation (the
