@@ -25,6 +25,17 @@ A pair with one ghost end is computed by both ranks from bitwise-identical input
 the same history; the energy and the Love-Weber sums count a pair on the rank owning its lower-gid
 end only.
 
+Spatial order (``sort_rows``, reproducible lists only): at the time loop's list rebuilds the
+owned rows are stored in Morton order of cells of edge ``reach`` (``physics.pair_lists.
+spatial_order``; on one process ``sort``, called by ``Simulation.rebuild_contacts``; on several,
+``SlabComm.exchange``), and the pairs are computed by first row, so that a block of pairs reads rows
+near each other in memory; their loads are then added row by row in key order
+(``pair_loop``'s ``ordered``, ``pair_loads.add_in_order``), so every element receives the same
+additions in the same order as from the list order: the bits do not change, whatever the rows'
+storage order. The list itself (``i, j, keys, history``) stays in key order. A shuffled packing of
+64,000 grains computes its contacts 1.8x faster so. ``Simulation`` turns it off with plates or
+walls (their forces are summed in row order).
+
 Reproducible runs (``reproducible``, issue 16 item 8: the same bits on any number of ranks): the
 list is ordered by pair key (lower gid, then higher gid) at every build, so that each element
 adds its contact forces in an order fixed by the gids alone (pairs ``(a, k)`` by ``a``, then
@@ -33,13 +44,16 @@ lower-gid end as ``i``, so ``f_ij = -f_ji`` bitwise on both ranks of a boundary 
 Love-Weber sums and the energy are accumulated exactly (``physics.exact_accumulate``) and
 reduced by ``global_sums`` (``parallel.exact_sum``), independent of the decomposition.
 """
+import inspect
+
 import numpy as np
 
 from pardem.parallel import exact_sum
 from pardem.physics import exact_accumulate as xa
 from pardem.physics.contact_frame import NO_SHIFT
 from pardem.physics.neighbours import VerletList, max_displacement2
-from pardem.physics.pair_lists import carry_history, order_by_key, shift_metres_into
+from pardem.physics.pair_lists import (carry_history, compute_order, order_by_key, shift_metres_into,
+                                       spatial_order)
 from pardem.physics.timestep import contact_stiffness
 
 KEY_BASE = np.int64(1) << np.int64(31)
@@ -52,6 +66,9 @@ N_TOUCHING = 9
 
 # default of ``Contacts(reproducible=None)``: lists in key order and exact sums (module docstring)
 REPRODUCIBLE = True
+
+# default of ``Contacts.sort_rows`` for reproducible lists (module docstring, "Spatial order")
+SORT_ROWS = True
 
 
 def pair_keys(gid_i, gid_j):
@@ -123,6 +140,10 @@ class Contacts:
         self.builds = 0
         self.lost = 0      # rows the law marks persistent (intact cements) dropped by rebuilds
         self.cut = float(reach)
+        # the compute order of a spatially sorted list (built at the first step after a rebuild)
+        self._order = None
+        self.sort_rows = bool(SORT_ROWS and self.reproducible
+                              and "order" in inspect.signature(law.compute).parameters)
         if cell is not None and cell.deforming and not self.cut > 0.0:
             raise ValueError("Contacts in a deforming cell need reach = 2 R_max + skin (> 0): it "
                              "scales the rebuild margin")
@@ -198,8 +219,44 @@ class Contacts:
         self.keys = np.ascontiguousarray(keys, dtype=np.int64)
         self.history = np.ascontiguousarray(history, dtype=np.float64)
         self.shift = self.cell.shift_metres(self.shifts) if self.periodic else None
+        self._order = None
         self.builds += 1
         self.exact_ready = False
+
+    def sort(self, elements, bonds=None):
+        """Store the rows of a single process (no ghost rows) in spatial order, in place (module
+        docstring), and relink ``bonds``; call before ``rebuild``. Nothing when ``sort_rows`` is
+        off or the rows are in that order already."""
+        e = elements
+        if not self.sort_rows or e.n_owned != e.n_total or e.n_total < 2:
+            return
+        order = spatial_order(e.x, e.n_total, *self.grid_box(e.x[:e.n_total]), self.cut)
+        if np.any(order != np.arange(e.n_total)):
+            e.permute(order)
+            if bonds is not None and bonds.n:
+                bonds.relink(e.gid)
+
+    def grid_box(self, x):
+        """``(lo, hi)`` [3] [m] of the grid of the spatial order: the cell's box, or the extent of
+        the positions ``x`` [n, 3] without a cell (the same on every rank with a cell)."""
+        if self.cell is not None:
+            return self.cell.lo, self.cell.hi
+        return (x.min(axis=0), x.max(axis=0)) if len(x) else (np.zeros(3), np.zeros(3))
+
+    def _compute_order(self, n_rows):
+        """``compute``'s ``order`` argument of the current list (``pair_lists.compute_order``)."""
+        order, inc_start, inc = compute_order(self.i, self.j, n_rows)
+        shifts = np.ascontiguousarray(self.shifts[order])
+        shift = None
+        if self.shift is not None:
+            shift = np.empty((len(order), 3))
+            shift_metres_into(shifts, self.shift_period(), shift)
+        self._order = (order, np.ascontiguousarray(self.i[order]), np.ascontiguousarray(self.j[order]),
+                       shift, np.empty((len(order), 12)), inc_start, inc, shifts)
+
+    def shift_period(self):
+        """The cell's edges along its periodic axes, 0 along the others [3] [m]."""
+        return np.where(self.cell.periodic, self.cell.length, 0.0)
 
     def budget_used(self, moved2):
         """True when the skin is used up: the largest displacement ``sqrt(moved2)`` [m] (fluctuation
@@ -249,8 +306,9 @@ class Contacts:
         rate = None
         if self.periodic:
             if self.cell.deforming:     # in place: the same products as cell.shift_metres
-                shift_metres_into(self.shifts, np.where(self.cell.periodic, self.cell.length, 0.0),
-                                  self.shift)
+                shift_metres_into(self.shifts, self.shift_period(), self.shift)
+                if self._order is not None and self._order[3] is not None:
+                    shift_metres_into(self._order[7], self.shift_period(), self._order[3])
             rate = self.cell.rate
         self.sums[:] = 0.0
         # exact sums when something may read them: a servo (every step), or an operation (the
@@ -258,11 +316,16 @@ class Contacts:
         servo = self.cell is not None and self.cell.servo is not None
         self.exact_ready = False
         self.stress_ready = True
+        order = {}
+        if self.sort_rows and self.reproducible:
+            if self._order is None or len(self._order[0]) != len(self.i):
+                self._compute_order(elements.n_total)
+            order = {"order": self._order[:7]}
         if self.reproducible and (with_energy or servo):
             self.xacc[:] = 0
             flag = self.law.compute(self.params, elements, self.i, self.j, self.history, dt,
                                     self.shift, rate, self.sums, with_energy=with_energy,
-                                    xacc=self.xacc)
+                                    xacc=self.xacc, **order)
             self.exact_ok = bool(flag == 0.0)
             self.exact_ready = True
             local = xa.value(self.xacc) if self.exact_ok else np.full(10, np.nan)
@@ -273,7 +336,7 @@ class Contacts:
         self.energy = float(self.law.compute(self.params, elements, self.i, self.j, self.history,
                                              dt, self.shift, rate, self.sums,
                                              with_energy=with_energy,
-                                             with_stress=self.stress_ready))
+                                             with_stress=self.stress_ready, **order))
         return self.energy
 
     @property

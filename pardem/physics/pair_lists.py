@@ -128,3 +128,82 @@ def shift_metres_into(shifts, period, out):
         out[p, 0] = np.float64(shifts[p, 0]) * p0
         out[p, 1] = np.float64(shifts[p, 1]) * p1
         out[p, 2] = np.float64(shifts[p, 2]) * p2
+
+
+# -- spatial order of the rows and the compute order of the pairs ---------------------------------
+
+@njit(cache=True, error_model="numpy")
+def _morton_codes(x, n, lo, inv_h, nc, codes):
+    for k in range(n):
+        code = np.int64(0)
+        for d in range(3):
+            m = np.int64((x[k, d] - lo[d]) * inv_h[d])
+            if m < 0:
+                m = 0
+            elif m >= nc[d]:
+                m = nc[d] - 1
+            for b in range(21):           # 3 x 21 bits: cells up to 2^21 per axis
+                code |= ((m >> b) & 1) << (3 * b + d)
+        codes[k] = code
+
+
+def spatial_order(x, n, lo, hi, h):
+    """A permutation of rows ``[0, n)`` (int64 [n]) in Morton (Z) order of the cells of edge
+    about ``h`` [m] of the box ``[lo, hi]`` [3] [m] (rows outside are put in the border cells),
+    rows of one cell in their current order: rows near in space end near in memory."""
+    lo = np.asarray(lo, dtype=np.float64)
+    extent = np.asarray(hi, dtype=np.float64) - lo
+    nc = np.clip(np.floor(extent / h), 1, 1 << 21).astype(np.int64) if h > 0.0 else np.ones(3, np.int64)
+    inv_h = np.where(extent > 0.0, nc / np.where(extent > 0.0, extent, 1.0), 0.0)
+    codes = np.empty(n, dtype=np.int64)
+    _morton_codes(np.ascontiguousarray(x), n, lo, inv_h, nc, codes)
+    return np.argsort(codes, kind="stable")
+
+
+@njit(cache=True, error_model="numpy")
+def _compute_order(i, j, n_rows, order, inc_start, inc):
+    n = i.shape[0]
+    start = np.zeros(n_rows + 1, dtype=np.int64)
+    for p in range(n):
+        start[i[p] + 1] += 1
+    for r in range(n_rows):
+        start[r + 1] += start[r]
+    cursor = start[:n_rows].copy()
+    for p in range(n):                    # by first row, key order within: stable
+        order[cursor[i[p]]] = p
+        cursor[i[p]] += 1
+    q_of = np.empty(n, dtype=np.int64)
+    for q in range(n):
+        q_of[order[q]] = q
+    for r in range(n_rows + 1):
+        inc_start[r] = 0
+    for p in range(n):
+        inc_start[i[p] + 1] += 1
+        inc_start[j[p] + 1] += 1
+    for r in range(n_rows):
+        inc_start[r + 1] += inc_start[r]
+    for r in range(n_rows):
+        cursor[r] = inc_start[r]
+    for p in range(n):                    # increasing p: each row's loads in key order
+        a = i[p]
+        inc[cursor[a]] = 2 * q_of[p]
+        cursor[a] += 1
+        b = j[p]
+        inc[cursor[b]] = 2 * q_of[p] + 1
+        cursor[b] += 1
+
+
+def compute_order(i, j, n_rows):
+    """The order in which a key-ordered list ``(i, j)`` [n] of rows ``[0, n_rows)`` is computed
+    when its rows are in spatial order, and how the loads are then added back in key order:
+    ``order`` int64 [n] (position q computes pair ``order[q]``: by first row, so that the rows
+    a block reads lie near in memory), ``inc_start`` int64 [n_rows + 1] and ``inc`` int64 [2 n]:
+    row r's loads are the entries ``inc[inc_start[r]:inc_start[r + 1]]``, each ``2 q`` (r is the
+    pair's first end) or ``2 q + 1`` (its second end), in increasing key order: the order in
+    which the one-pass loop adds them (``pair_loop``)."""
+    n = len(i)
+    order = np.empty(n, dtype=np.int64)
+    inc_start = np.empty(n_rows + 1, dtype=np.int64)
+    inc = np.empty(2 * n, dtype=np.int64)
+    _compute_order(np.ascontiguousarray(i), np.ascontiguousarray(j), int(n_rows), order, inc_start, inc)
+    return order, inc_start, inc
