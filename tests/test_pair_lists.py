@@ -15,6 +15,7 @@ the order in which its rows are stored.
 import numpy as np
 import pytest
 
+from pardem.engine import contacts as contacts_mod
 from pardem.engine.contacts import lookup, pair_keys
 from pardem.engine.system import Cell, ContactModel, Decomposition, Integration, Particles, System, build
 from pardem.parallel.communicator import Communicator
@@ -139,10 +140,11 @@ def test_state_by_gid_does_not_depend_on_row_order():
         assert a[k] == b[k], k
 
 
-def test_spatial_sort_keeps_the_bits():
+def test_spatial_sort_keeps_the_bits(monkeypatch):
     """Rows stored in spatial order at every rebuild, pairs computed by first row and their loads
     added in key order (``Contacts.sort_rows``): the same bits by gid as the list order, also for
     a packing whose rows start in a random order; the rows were indeed reordered."""
+    monkeypatch.setattr(contacts_mod, "SORT_MIN_ROWS", 0)    # sort these 216 rows too
     comm = Communicator()
     runs = []
     for sort in (False, True):

@@ -247,7 +247,7 @@ class SlabComm:
         else:
             raise DecompositionError("elements still misplaced after one pass per rank")
         order = np.argsort(cur["gid"], kind="stable")
-        if contacts is not None and contacts.sort_rows and len(order) > 1:
+        if contacts is not None and contacts.sorting(len(order)) and len(order) > 1:
             x = cur["x"][order]      # from gid order: the same order whatever the arrival order
             order = order[spatial_order(x, len(x), *contacts.grid_box(x), contacts.cut)]
         cur = _select(cur, order)
