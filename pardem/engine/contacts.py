@@ -452,11 +452,16 @@ class Contacts:
 
     def nbytes(self):
         """Bytes held by this rank's contact list: pair rows, shifts, keys, history, the shifts in
-        metres, the Verlet list's buffers (at capacity), its reference positions and scratch."""
-        arrays = [self.i, self.j, self.shifts, self.keys, self.history, self.vl._pairs,
+        metres, the Verlet list's buffers (at capacity), its reference positions and scratch, and
+        with sorted rows the computing order, its loads buffer and the history in that order."""
+        arrays = [self.i, self.j, self.shifts, self.keys, self._history, self.vl._pairs,
                   self.vl._shifts, self.vl.x_build, self.xacc]
         if self.shift is not None:
             arrays.append(self.shift)
+        if self._order is not None:      # the computing order of a sorted list and its buffers
+            arrays += [a for a in self._order if a is not None]
+        if self._hist_c is not None:
+            arrays.append(self._hist_c)
         work = self.vl._work
         arrays += [work.cell_of, work.image, work.cell_rows, work.cell_start, work.xs, work.rs,
                    work.gs, work.ims]
