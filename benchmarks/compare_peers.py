@@ -1,9 +1,11 @@
-"""pardem against its peers, side by side in one run (issue 14): GRAN against LAMMPS, BOND against
-ESyS-Particle, interleaved A B A B A B (best of ``--repeats``), on this machine, now.
+"""pardem against its peers, side by side in one run (issue 14): GRAN and GRAN-SHEAR against
+LAMMPS, BOND against ESyS-Particle, interleaved A B A B A B (best of ``--repeats``), on this
+machine, now.
 
     python benchmarks/compare_peers.py                       # n = 40, 1 and 2 ranks, GRAN + BOND
     python benchmarks/compare_peers.py --sizes 40 60 --ranks 1 2 --repeats 3
     python benchmarks/compare_peers.py --cases gran --sizes 20 --steps 200 --repeats 1   # smoke test
+    python benchmarks/compare_peers.py --cases shear --shear-n 64000 --ranks 1 2   # GRAN-SHEAR
 
 Writes ``results/compare_peers.json`` (every run, with the load seen during it) and
 ``results/compare_peers.md`` (the table with the ratios and the date); ``--out STEM`` moves both.
@@ -38,6 +40,18 @@ The cases are those of ``../shared/peers/CASES.md``, written here from that text
   ones), two elastic walls; one worker rank per pardem rank plus ESyS' master rank; seconds =
   wall time of the timed ``runTimeStep`` loop.
 
+* GRAN-SHEAR (``shear_case.py``): N polydisperse spheres (radii uniform in [0.08, 0.12] mm) of
+  the GRAN material in the shared dense random packing ``shear_N.npz`` (rows in a random order),
+  sheared at constant volume (pure shear: x at +2000 1/s, y at -2000 1/s, z fixed); dt = 2e-8 s,
+  skin 2e-5 m, lists checked every step; 200 warm-up (``--shear-warmup``) then 2000 timed steps.
+  pardem: ``benchmarks/bench_shear.py`` (peculiar velocities, the cell's affine motion in the
+  contact law; rebuilt when the displacement relative to the affine motion exceeds the skin
+  budget). LAMMPS: the GRAN input plus ``fix deform 1 x trate tx y trate ty remap v`` with
+  ``trate = ln(1 +- g dt) / dt`` (the same edges as pardem at every step) and lab-frame velocities
+  (the peculiar ones plus the streaming velocity about the box centre); it rebuilds when an atom
+  moved half the skin in the lab frame (less the box corners' motion). Every rebuild of the timed
+  steps is counted in both; the table gives both codes' counts and contacts at the end.
+
 Peers run only when their executables are found (``lmp``, ``esysparticle`` and
 ``mpirun.openmpi``; Debian packages ``lammps`` and ``esys-particle``, see
 ``../shared/peers/install.sh``); pardem runs with ``mpiexec.mpich`` on several ranks. Figure of
@@ -57,6 +71,8 @@ import subprocess
 import sys
 import tempfile
 import time
+
+import shear_case
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
@@ -92,6 +108,36 @@ thermo          0
 run             {warm}
 print           "COMPARE_PEERS timed"
 run             {steps}
+"""
+
+LAMMPS_SHEAR_INPUT = """\
+# GRAN-SHEAR (CASES.md), written by pardem/benchmarks/compare_peers.py
+units           si
+atom_style      sphere
+atom_modify     map array
+boundary        p p p
+newton          on
+comm_modify     vel yes
+read_data       {data}
+# skin 2e-5 m, checked every step (LAMMPS measures displacements in the lab frame)
+neighbor        {skin:.17g} bin
+neigh_modify    delay 0 every 1 check yes
+pair_style      gran/hertz/history {kn:.17g} {kt:.17g} 0.0 0.0 {mu} 0
+pair_coeff      * *
+timestep        {dt:.17g}
+fix             integrate all nve/sphere
+# pure shear at constant volume: L(t) = L0 exp(trate t) = L0 (1 +- g dt)^n, centre fixed
+fix             shear all deform 1 x trate {tx:.17g} y trate {ty:.17g} remap v
+compute         touch all contact/atom
+compute         ntouch all reduce sum c_touch
+variable        nc equal c_ntouch/2
+thermo_style    custom step atoms ke c_ntouch
+thermo_modify   norm no
+thermo          0
+run             {warm}
+print           "COMPARE_PEERS timed"
+run             {steps}
+print           "COMPARE_PEERS contacts=${{nc}}"
 """
 
 ESYS_SCRIPT = """\
@@ -213,48 +259,73 @@ def pardem_cmd(args, ranks, script):
 
 def run_pardem(args, case, n, ranks, work):
     out = os.path.join(work, f"pardem_{case}_{n}_{ranks}.json")
-    script = "bench_gran.py" if case == "gran" else "bench_bond.py"
-    cmd = pardem_cmd(args, ranks, script) + ["--sizes", str(n), "--warmup", str(args.warmup),
-                                             "--steps", str(args.steps), "--out", out]
+    script = {"gran": "bench_gran.py", "bond": "bench_bond.py", "shear": "bench_shear.py"}[case]
+    if case == "shear":
+        cmd = pardem_cmd(args, ranks, script) + ["--n", str(n), "--warmup", str(args.shear_warmup),
+                                                 "--steps", str(args.steps), "--out", out]
+    else:
+        cmd = pardem_cmd(args, ranks, script) + ["--sizes", str(n), "--warmup", str(args.warmup),
+                                                 "--steps", str(args.steps), "--out", out]
     if case == "gran":
         cmd += ["--orientation", args.gran_orientation]
-    _, _, others = run(cmd, HERE, {"OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"})
+    load = os.getloadavg()[0]
+    _, _, others = run(cmd, HERE, {"OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1",
+                                   "PYTHONPATH": os.pathsep.join(filter(None, [ROOT, os.environ.get("PYTHONPATH")]))})
     with open(out) as fh:
         row = json.load(fh)["results"][0]
-    extra = {"bytes_per_element": row["bytes_per_element"]}
-    if case == "gran":
+    extra = {"bytes_per_element": row["bytes_per_element"], "loadavg": load}
+    if case in ("gran", "shear"):
         extra.update(rebuilds=row["rebuilds_during_timed_steps"], contacts=row["contacts"])
     return {"seconds": row["seconds"], "cpu_seconds": row.get("cpu_seconds"), "elements": row["elements"],
             "other_cores": others, **extra}
 
 
-def run_lammps(args, n, ranks, work):
-    d = os.path.join(work, f"lammps_{n}")
-    os.makedirs(d, exist_ok=True)
-    data = os.path.join(d, "gran.data")
-    if not os.path.exists(data):
-        lattice_data(n, data)
+def _lammps_constants():
     e_star = GRAN_E / (2.0 * (1.0 - GRAN_NU**2))
     g = GRAN_E / (2.0 * (1.0 + GRAN_NU))
     g_star = g / (2.0 * (2.0 - GRAN_NU))
-    with open(os.path.join(d, "in.gran"), "w") as fh:
-        fh.write(LAMMPS_INPUT.format(data=data, skin=0.1 * GRAN_R, kn=4.0 / 3.0 * e_star,
-                                     kt=8.0 * g_star, mu=GRAN_MU, dt=GRAN_DT, warm=args.warmup,
-                                     steps=args.steps))
+    return {"kn": 4.0 / 3.0 * e_star, "kt": 8.0 * g_star, "mu": GRAN_MU}
+
+
+def run_lammps(args, n, ranks, work, case="gran"):
+    d = os.path.join(work, f"lammps_{case}_{n}")
+    os.makedirs(d, exist_ok=True)
+    data = os.path.join(d, f"{case}.data")
+    if case == "shear":
+        elements = n
+        if not os.path.exists(data):
+            shear_case.lammps_data(shear_case.load(n), data)
+        tx, ty = shear_case.lammps_trates()
+        text = LAMMPS_SHEAR_INPUT.format(data=data, skin=shear_case.SKIN, dt=shear_case.DT, tx=tx, ty=ty,
+                                         warm=args.shear_warmup, steps=args.steps, **_lammps_constants())
+    else:
+        elements = n**3
+        if not os.path.exists(data):
+            lattice_data(n, data)
+        text = LAMMPS_INPUT.format(data=data, skin=0.1 * GRAN_R, dt=GRAN_DT, warm=args.warmup,
+                                   steps=args.steps, **_lammps_constants())
+    with open(os.path.join(d, f"in.{case}"), "w") as fh:
+        fh.write(text)
     log = os.path.join(d, f"log.{ranks}")
     cmd = [args.mpirun_openmpi, "--allow-run-as-root", "--oversubscribe", "-np", str(ranks),
-           args.lmp, "-in", "in.gran", "-log", log, "-screen", "none", "-nocite"]
+           args.lmp, "-in", f"in.{case}", "-log", log, "-screen", "none", "-nocite"]
+    load = os.getloadavg()[0]
     _, _, others = run(cmd, d, {"OMP_NUM_THREADS": "1"})
     with open(log) as fh:
         timed = fh.read().split("COMPARE_PEERS timed", 1)[1]
     m = re.search(r"^Loop time of (\S+) on (\d+) procs for (\d+) steps with (\d+) atoms", timed, re.M)
-    if not m or int(m.group(2)) != ranks or int(m.group(3)) != args.steps or int(m.group(4)) != n**3:
+    if not m or int(m.group(2)) != ranks or int(m.group(3)) != args.steps or int(m.group(4)) != elements:
         raise RuntimeError(f"unexpected LAMMPS log {log}")
     builds = re.search(r"^Neighbor list builds = (\d+)", timed, re.M)
     cpu = re.search(r"^([0-9.]+)% CPU use with", timed, re.M)
-    return {"seconds": float(m.group(1)), "elements": n**3, "other_cores": others,
+    # LAMMPS' own breakdown of the timed loop: Pair, Neigh, Comm, Modify, ... seconds (avg over ranks)
+    breakdown = {k: float(v) for k, v in re.findall(r"^(\w+)\s*\|\s*\S+\s*\|\s*(\S+)\s*\|", timed, re.M)
+                 if k != "Section"}
+    contacts = re.search(r"^COMPARE_PEERS contacts=(\S+)", timed, re.M)
+    return {"seconds": float(m.group(1)), "elements": elements, "other_cores": others, "loadavg": load,
             "cpu_seconds": float(m.group(1)) * float(cpu.group(1)) / 100.0 if cpu else None,
-            "rebuilds": int(builds.group(1)) if builds else None}
+            "rebuilds": int(builds.group(1)) if builds else None, "breakdown": breakdown,
+            "contacts": int(round(float(contacts.group(1)))) if contacts else None}
 
 
 def run_esys(args, n, ranks, work):
@@ -278,6 +349,7 @@ def run_esys(args, n, ranks, work):
 
 
 PEERS = {"gran": ("LAMMPS gran/hertz/history", "lmp", run_lammps),
+         "shear": ("LAMMPS gran/hertz/history", "lmp", lambda args, n, ranks, work: run_lammps(args, n, ranks, work, "shear")),
          "bond": ("ESyS-Particle RotBond", "esys", run_esys)}
 
 
@@ -311,19 +383,24 @@ def cpu_model():
     return f"{name}, {simd}" if simd else name
 
 
+CASE_NAMES = {"shear": "GRAN-SHEAR"}
+
+
 def table(report):
     """Markdown of a report: one row per case, size and rank count, best of the repeats."""
     steps = report["steps"]
     lines = [f"Measured {report['date']} to {report.get('date_end', '?')} on {report['machine']} ({report['cpus']} CPUs"
              f"{', ' + report['cpu'] if report.get('cpu') else ''}), "
              f"interleaved pardem / peer, best of {report['repeats']}; element-steps per second "
-             f"({report['warmup']} warm-up + {steps} timed steps). Load: largest CPU share other "
-             "processes took during a run, in cores (> 0.15: the figure is not valid)."
+             f"({report['warmup']} warm-up, GRAN-SHEAR {report.get('shear_warmup', 200)}, + {steps} timed steps). "
+             "Load: largest CPU share other processes took during a run, in cores (> 0.15: the figure is not "
+             "valid on its own; the ratio of one row is still a comparison under the same load); loadavg: the "
+             "1-minute load average (uptime) before the row's runs, lowest-highest."
              + {"on": " GRAN: pardem integrates the grains' orientations (LAMMPS' nve/sphere does not).",
                 "off": " GRAN: neither code integrates the grains' orientations (pardem's orientation=False, "
                        "LAMMPS' nve/sphere)."}.get(report.get("gran_orientation"), ""), "",
-             "| case | n | ranks | peer code | peer | pardem | ratio | load | ratio of CPU time |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "| case | n | ranks | peer code | peer | pardem | ratio | load | loadavg | ratio of CPU time |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     best = {}
     for row in report["rows"]:
         p = max(rate(r, steps) for r in row["pardem"])
@@ -331,16 +408,32 @@ def table(report):
         best[(row["case"], row["n"], row["ranks"])] = (p, q)
         load = max([r["other_cores"] or 0.0 for r in row["pardem"] + row["peer"]])
         flag = " !" if load > 0.15 else ""
-        lines.append(f"| {row['case'].upper()} | {row['n']} | {row['ranks']} | {row['peer_name']} | "
-                     f"{'—' if q is None else f'{q:.3g}'} | {p:.3g} | "
-                     f"{'—' if q is None else f'{p / q:.2f}'} | {load:.2f}{flag} | {cpu_ratio(row)} |")
+        avgs = [r["loadavg"] for r in row["pardem"] + row["peer"] if r.get("loadavg") is not None]
+        avg = f"{min(avgs):.1f}-{max(avgs):.1f}" if avgs else "—"
+        lines.append(f"| {CASE_NAMES.get(row['case'], row['case'].upper())} | {row['n']} | {row['ranks']} | "
+                     f"{row['peer_name']} | {'—' if q is None else f'{q:.3g}'} | {p:.3g} | "
+                     f"{'—' if q is None else f'{p / q:.2f}'} | {load:.2f}{flag} | {avg} | {cpu_ratio(row)} |")
     speedups = []
     for (case, n, ranks), (p, q) in sorted(best.items()):
         if ranks > 1 and (case, n, 1) in best:
             p1, q1 = best[(case, n, 1)]
-            s = f"| {case.upper()} | {n} | 1 -> {ranks} | {p / p1:.2f} | "
+            s = f"| {CASE_NAMES.get(case, case.upper())} | {n} | 1 -> {ranks} | {p / p1:.2f} | "
             s += "— |" if q is None or q1 is None else f"{q / q1:.2f} |"
             speedups.append(s)
+    shear = [row for row in report["rows"] if row["case"] == "shear"]
+    if shear:
+        lines += ["", "GRAN-SHEAR, best run of each code: list builds during the timed steps, contacts at the "
+                  "end, and LAMMPS' own breakdown of its loop time (seconds: Pair, Neigh, Comm, Modify, Other).", "",
+                  "| N | ranks | pardem rebuilds | LAMMPS rebuilds | pardem contacts | LAMMPS contacts | "
+                  "pardem B/element | LAMMPS breakdown |", "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+        for row in shear:
+            bp = max(row["pardem"], key=lambda r: rate(r, steps))
+            bq = max(row["peer"], key=lambda r: rate(r, steps)) if row["peer"] else {}
+            br = ", ".join(f"{k} {v:.3g}" for k, v in bq.get("breakdown", {}).items()
+                           if k in ("Pair", "Neigh", "Comm", "Modify", "Other"))
+            lines.append(f"| {row['n']} | {row['ranks']} | {bp.get('rebuilds')} | {bq.get('rebuilds', '—')} | "
+                         f"{bp.get('contacts')} | {bq.get('contacts', '—')} | {bp['bytes_per_element']:.0f} | "
+                         f"{br or '—'} |")
     if speedups:
         lines += ["", "| case | n | ranks | pardem speed-up | peer speed-up |",
                   "| --- | --- | --- | --- | --- |"] + speedups
@@ -349,8 +442,11 @@ def table(report):
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--cases", nargs="+", choices=["gran", "bond"], default=["gran", "bond"])
-    p.add_argument("--sizes", type=int, nargs="+", default=[40], help="n (elements per edge)")
+    p.add_argument("--cases", nargs="+", choices=["gran", "bond", "shear"], default=["gran", "bond"])
+    p.add_argument("--sizes", type=int, nargs="+", default=[40], help="GRAN, BOND: n (elements per edge)")
+    p.add_argument("--shear-n", type=int, nargs="+", default=[64000],
+                   help="GRAN-SHEAR: N, spheres of a shared packing shear_N.npz (8000, 64000)")
+    p.add_argument("--shear-warmup", type=int, default=200)
     p.add_argument("--ranks", type=int, nargs="+", default=[1, 2])
     p.add_argument("--repeats", type=int, default=3, help="interleaved pairs per row (best taken)")
     p.add_argument("--warmup", type=int, default=100)
@@ -374,6 +470,10 @@ def main():
                     ("--steps", [args.steps])):
         if min(v) < 1:
             p.error(f"{name} must be >= 1")
+    if "shear" in args.cases:
+        for n in args.shear_n:
+            if not os.path.exists(shear_case.packing_path(n)):
+                p.error(f"--shear-n {n}: no packing {shear_case.packing_path(n)}")
     if min(args.sizes) < 4:
         p.error("--sizes: n must be >= 4 (a periodic box of n < 4 spheres is shorter than twice the reach)")
     have = {"lmp": args.lmp is not None and shutil.which(args.mpirun_openmpi) is not None,
@@ -383,12 +483,13 @@ def main():
               .strftime("%Y-%m-%d %H:%M UTC"), "machine": platform.machine(), "cpus": os.cpu_count(),
               "cpu": cpu_model(), "load_before": os.getloadavg(), "warmup": args.warmup, "steps": args.steps,
               "repeats": args.repeats, "gran_orientation": args.gran_orientation,
+              "shear_warmup": args.shear_warmup,
               "work": work if args.keep else None, "rows": []}
     try:
         for case in args.cases:
             peer_name, exe, peer_run = PEERS[case]
             use_peer = have[exe] and not args.no_peers
-            for n in args.sizes:
+            for n in (args.shear_n if case == "shear" else args.sizes):
                 for ranks in args.ranks:
                     row = {"case": case, "n": n, "ranks": ranks,
                            "peer_name": peer_name if use_peer else "(not run)", "pardem": [], "peer": []}

@@ -88,6 +88,28 @@ def test_profile_gran():
     assert res.stdout.strip()
 
 
+def shear_packing_8000():
+    sys.path.insert(0, os.path.join(ROOT, "benchmarks"))
+    import shear_case
+    return shear_case.packing_path(8000)
+
+
+@pytest.mark.skipif(not os.path.exists(shear_packing_8000()), reason="the shared GRAN-SHEAR packings "
+                    "(../shared/peers/shear/packings) are not on this machine")
+def test_compare_peers_shear_without_peers(tmp_path):
+    """GRAN-SHEAR (N = 8,000, shortened) through compare_peers: the run counts its elements and
+    reports the pairs in contact of a dense packing (Z = 2 contacts / N about 5, README of the
+    shared case: 4.9-5.3; bounds 4-6)."""
+    out = tmp_path / "cps"
+    run("compare_peers.py", "--no-peers", "--cases", "shear", "--shear-n", 8000, "--ranks", 1,
+        "--repeats", 1, "--shear-warmup", 5, "--steps", 20, "--out", out)
+    row, = load(f"{out}.json")["rows"]
+    run_, = row["pardem"]
+    assert (row["case"], row["n"], run_["elements"]) == ("shear", 8000, 8000)
+    assert 4.0 < 2 * run_["contacts"] / 8000 < 6.0
+    assert "| GRAN-SHEAR | 8000 | 1 | (not run) |" in (tmp_path / "cps.md").read_text()
+
+
 @pytest.mark.skipif(MPIEXEC is None, reason="no mpiexec")
 def test_compare_peers_without_peers(tmp_path):
     out = tmp_path / "cp"

@@ -129,6 +129,8 @@ class Simulation:
         self.seconds_computing = 0.0   # in the kernels (communication excluded)
         self.domain = domain           # the parallel layer (SlabComm) or None on a single process
         self.contacts = contacts
+        if contacts is not None and plates is not None:
+            contacts.sort_rows = False     # wall forces are summed in row order
         self.cell = cell
         self.viscous_damping = float(viscous_damping)
         self.orientation = bool(orientation)
@@ -205,6 +207,7 @@ class Simulation:
         """Single process: wrap into the periodic cell and rebuild the contact list."""
         if self.cell is not None:
             self.cell.wrap(self.elements)
+        self.contacts.sort(self.elements, self.bonds)     # rows in spatial order (when sort_rows)
         self.contacts.rebuild(self.elements, self.bonds)
         self.pairs_freed = False
 

@@ -130,6 +130,20 @@ class Elements:
             parts.append(extra.pack(slice(0, extra.n_total)))
         return Elements.unpack(parts, len(rows) + (0 if extra is None else extra.n_total))
 
+    def permute(self, order):
+        """Store the rows in the order ``order`` (int [n_total], a permutation of the rows), in
+        place: every per-element array (also ``rot``, ``f``, ``t``, ``wall_h`` and the custom
+        ``properties``) moves with its row. For a process without ghost rows (the owned rows are
+        all the rows); whoever holds row indices (bonds: ``Bonds.relink``) must refresh them."""
+        order = np.asarray(order)
+        if self.n_owned != self.n_total or order.shape != (self.n_total,):
+            raise ValueError(f"Elements.permute: order must hold the {self.n_total} rows of a "
+                             f"process without ghosts (n_owned {self.n_owned})")
+        arrays = [getattr(self, f.name) for f in fields(self) if f.name not in ("n_owned", "properties")]
+        for a in arrays + list(self.properties.values()):
+            if isinstance(a, np.ndarray) and a.ndim and a.shape[0] == self.n_total:
+                a[...] = a[order]
+
     def refresh_rotations(self, start=0, stop=None):
         """Recompute the cached rotation matrices of rows ``[start, stop)`` from ``q``."""
         _refresh_rot(self.q, self.rot, start, self.n_total if stop is None else stop)

@@ -45,6 +45,7 @@ from numba import njit
 
 from pardem.parallel.slabs import Slabs, imbalance
 from pardem.physics.neighbours import max_displacement2
+from pardem.physics.pair_lists import spatial_order
 from pardem.errors import DecompositionError, InstabilityError
 from pardem.engine.state import Bonds, Elements
 
@@ -184,14 +185,16 @@ class SlabComm:
         elements, bonds, _ = self.exchange(elements, bonds)
         return self.borders(elements, bonds)
 
-    def setup_with_pairs(self, elements, bonds, table, wrap=True):
+    def setup_with_pairs(self, elements, bonds, table, wrap=True, contacts=None):
         """``setup`` that also migrates the contact history ``table``; returns (elements, bonds,
         table) with the table entries touching an owned element. ``wrap``: first wrap the owned
         rows into the cell (False when the caller just did: a second wrap may move a row that
-        the first rounded onto the cell's upper face, which one process would not do)."""
+        the first rounded onto the cell's upper face, which one process would not do).
+        ``contacts``: the owned rows are stored in its spatial order when its ``sort_rows``
+        (else by gid)."""
         if wrap and self.cell is not None:
             self.cell.wrap(elements)
-        elements, bonds, table = self.exchange(elements, bonds, table)
+        elements, bonds, table = self.exchange(elements, bonds, table, contacts)
         elements, bonds = self.borders(elements, bonds)
         return elements, bonds, table
 
@@ -210,11 +213,12 @@ class SlabComm:
     def _key(self, e, n):
         return e.x[:n, self.slabs.axis], e.gid[:n]
 
-    def exchange(self, elements, bonds, table=None):
+    def exchange(self, elements, bonds, table=None, contacts=None):
         """Move owned elements (with their bonds and contact history) to the ranks owning their
         keys; drop ghosts.
 
-        Returns owned-only elements sorted by gid, the bonds with at least one owned end (``i, j``
+        Returns owned-only elements sorted by gid (in the spatial order of ``contacts`` when its
+        ``sort_rows``: ``pardem.engine.contacts``), the bonds with at least one owned end (``i, j``
         not yet linked: ``borders`` does it) and the entries of ``table`` (gid_i, gid_j, ...) with
         at least one owned end (None when ``table`` is None).
         """
@@ -243,7 +247,11 @@ class SlabComm:
                 table = _concat([table] + [g[2] for g in got])
         else:
             raise DecompositionError("elements still misplaced after one pass per rank")
-        cur = _select(cur, np.argsort(cur["gid"], kind="stable"))
+        order = np.argsort(cur["gid"], kind="stable")
+        if contacts is not None and contacts.sorting(len(order)) and len(order) > 1:
+            x = cur["x"][order]      # from gid order: the same order whatever the arrival order
+            order = order[spatial_order(x, len(x), *contacts.grid_box(x), contacts.cut)]
+        cur = _select(cur, order)
         mine = np.isin(cur_bonds["gid_i"], cur["gid"]) | np.isin(cur_bonds["gid_j"], cur["gid"])
         if table is not None:
             table = _select(table, np.isin(table["gid_i"], cur["gid"]) | np.isin(table["gid_j"], cur["gid"]))
@@ -408,7 +416,7 @@ class SlabComm:
                     elements, bonds = self.setup(e, bonds)
                 else:
                     elements, bonds, table = self.setup_with_pairs(e, bonds, contacts.table(),
-                                                                   wrap=False)
+                                                                   wrap=False, contacts=contacts)
                     contacts.rebuild(elements, bonds, table)
             except BondOutOfReach as err:
                 # during a run a bond stretched by a quarter of its length means the motion blew up

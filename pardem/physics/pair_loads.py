@@ -40,3 +40,32 @@ def next_run(f, t, cur, row, f0, f1, f2, t0, t1, t2):
     if cur >= 0:
         store_row(f, t, cur, f0, f1, f2, t0, t1, t2)
     return row, f[row, 0], f[row, 1], f[row, 2], t[row, 0], t[row, 1], t[row, 2]
+
+
+@njit(cache=True, error_model="numpy")
+def add_in_order(loads, inc_start, inc, f, t):
+    """Add the loads of pairs computed out of the list's order (``pair_loop``'s ``ordered``) to the
+    rows, row by row: ``loads`` [n, 12] of pair q are (F_i, T_i) for its first end and (-F_i,
+    T_j) for its second, all -0.0 for a pair that acts nothing (``x + (-0.0) == x`` and ``x - F
+    == x + (-F)`` bitwise, so no branch is needed); row r's entries ``inc[inc_start[r]:
+    inc_start[r + 1]]`` are ``2 q`` (first end) or ``2 q + 1`` (second end) in the list's order,
+    so each row receives the same additions in the same order as from the one-pass loop
+    (``pair_lists.compute_order``)."""
+    for r in range(inc_start.shape[0] - 1):
+        a = inc_start[r]
+        b = inc_start[r + 1]
+        if a == b:
+            continue
+        f0, f1, f2 = f[r, 0], f[r, 1], f[r, 2]
+        t0, t1, t2 = t[r, 0], t[r, 1], t[r, 2]
+        for e in range(a, b):
+            code = inc[e]
+            q = code >> 1
+            o = (code & 1) * 6
+            f0 += loads[q, o]
+            f1 += loads[q, o + 1]
+            f2 += loads[q, o + 2]
+            t0 += loads[q, o + 3]
+            t1 += loads[q, o + 4]
+            t2 += loads[q, o + 5]
+        store_row(f, t, r, f0, f1, f2, t0, t1, t2)

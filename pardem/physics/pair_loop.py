@@ -50,7 +50,7 @@ from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, add_love_weber, aff
 from pardem.physics.exact_accumulate import NLIMB
 from pardem.physics.exact_accumulate import add as exact_add
 from pardem.physics.exact_accumulate import normalize as exact_normalize
-from pardem.physics.pair_loads import next_run, store_row
+from pardem.physics.pair_loads import add_in_order, next_run, store_row
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -101,10 +101,11 @@ def _relative_motion(dv0, dv1, dv2, wi0, wi1, wi2, wj0, wj1, wj2, n0, n1, n2, li
 
 @lru_cache(maxsize=None)
 def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exact=False,
-              with_stress=True, *, history_width, with_mass=True, sheared=False):
+              with_stress=True, *, history_width, with_mass=True, sheared=False, ordered=False):
     """The compiled neighbour-list kernel of one law function and loop choice (built once).
 
-    ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, c, n_owned, acc, xacc)``
+    ``loop(i, j, shift, rate, x, v, w, radius, mass, f, t, history, dt, c, n_owned, acc, xacc,
+    order, loads)``
     adds the pair forces and torques to ``f``, ``t`` [n_total, 3] (owned and ghost rows alike),
     updates ``history`` [n_pairs, width], adds the Love-Weber sums of the pairs whose ``i`` is
     owned to ``acc`` [10] (``contact_frame.add_love_weber``) and returns their elastic energy [J]
@@ -143,6 +144,13 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     computed by the same operations as the one-pair kernel of ``all_pairs_loop`` and ``single``,
     and the loads, sums and energy are added in the same order, so the results are the same bits
     (``tests/test_contacts.py`` compares them); 1.5x faster than one pair at a time on GRAN.
+    ``ordered``: the pairs are computed in another order than the list's, and their loads added
+    by ``pair_loads.add_in_order`` afterwards in the list's order (so the bits are those of the
+    one-pass loop): ``i, j, shift`` are then the pairs in computing order, pair q's history row is
+    ``history[order[q]]`` and its loads go to ``loads[q]`` (F_i, T_i, -F_i, T_j) instead of
+    ``f``, ``t``; the Love-Weber sums must then be exact or left out (their register sums would
+    follow the computing order). Rows in spatial order, computed by first row, read memory near
+    each other, where the list's key order reads the second ends at random.
     The law's ``forces`` sees block indices: ``p`` indexes the history (a Fortran-ordered view
     ``[BLOCK, width]`` of the block's rows) and ``i``, ``j`` index ``mass`` only (the block's
     masses); a law must not use them for anything else.
@@ -150,19 +158,22 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     pair = _pair(forces, engaged, bool(deforming))
     return _jit(_list_loop(bool(periodic), bool(deforming), bool(with_energy), bool(exact),
                            bool(with_stress) or bool(exact), int(history_width),
-                           bool(with_mass), bool(sheared)), pair,
+                           bool(with_mass), bool(sheared), bool(ordered)), pair,
                 _name(forces, engaged), forces=forces, engaged=engaged)
 
 
 NO_XACC = np.zeros((10, NLIMB), dtype=np.int64)   # the exact accumulator of loops without ``exact``
+NO_ORDER = np.zeros(0, dtype=np.int64)             # ``order`` and ``loads`` of loops without ``ordered``
+NO_LOADS = np.zeros((0, 12))
 
 
 def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_width, with_mass,
-               sheared=False):
+               sheared=False, ordered=False):
     B = BLOCK
     WIDTH = history_width
 
-    def loop(pi, pj, shift, rate, x, v, w, radius, mass, f, t, hist, dt, c, n_owned, acc, xacc):
+    def loop(pi, pj, shift, rate, x, v, w, radius, mass, f, t, hist, dt, c, n_owned, acc, xacc,
+             order, loads):
         energy = 0.0
         s0 = s1 = s2 = 0.0
         g0 = g1 = g2 = 0.0
@@ -191,6 +202,7 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_wid
             m = min(B, n_pairs - p0)
             for k in range(m):       # gather
                 p = p0 + k
+                hp = order[p] if ordered else p     # the pair's history row
                 # unsigned rows: no negative-index wrap-around code per access
                 i = np.uint64(pi[p])
                 j = np.uint64(pj[p])
@@ -228,7 +240,7 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_wid
                 gat[12, k] = w[j, 1]
                 gat[13, k] = w[j, 2]
                 for col in range(width):
-                    hb[col, k] = hist[p, col]
+                    hb[col, k] = hist[hp, col]
                 if with_mass:        # only laws that read masses (damping) pay for them
                     mb[k] = mass_i
                     mb[B + k] = mass[j]
@@ -275,8 +287,19 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_wid
                 res[10, k] = 1.0 if acts else 0.0
             for k in range(m):       # scatter, in pair order
                 p = p0 + k
+                hp = order[p] if ordered else p
                 for col in range(width):
-                    hist[p, col] = hb[col, k]
+                    hist[hp, col] = hb[col, k]
+                if ordered:          # the loads are added later, in the list's order
+                    if res[10, k] != 0.0:
+                        for col in range(3):
+                            loads[p, col] = res[col, k]          # +F_i on i
+                            loads[p, 3 + col] = res[3 + col, k]  # T_i
+                            loads[p, 6 + col] = -res[col, k]     # x - F == x + (-F), bitwise
+                            loads[p, 9 + col] = res[6 + col, k]  # T_j
+                    else:                # x + (-0.0) == x for every x: a pair acting nothing
+                        for col in range(12):
+                            loads[p, col] = -0.0
                 if res[10, k] == 0.0:
                     continue
                 i = pi[p]
@@ -284,27 +307,28 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_wid
                 o0 = res[0, k]
                 o1 = res[1, k]
                 o2 = res[2, k]
-                if i != cur:         # a new run: store the last one's i-side, load this one's
-                    cur, fi0, fi1, fi2, ti0, ti1, ti2 = next_run(f, t, cur, i, fi0, fi1, fi2, ti0,
-                                                                 ti1, ti2)
-                if j == cur:         # a self image (tiny periodic cell): both ends in memory
-                    store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
-                    cur = -1
-                    scatter_pair(i, j, f, t, res[:9, k])
-                else:                # as pair_loads.scatter_pair, the i-side in registers
-                    fi0 += o0
-                    fi1 += o1
-                    fi2 += o2
-                    ju = np.uint64(j)
-                    f[ju, 0] -= o0
-                    f[ju, 1] -= o1
-                    f[ju, 2] -= o2
-                    ti0 += res[3, k]
-                    ti1 += res[4, k]
-                    ti2 += res[5, k]
-                    t[ju, 0] += res[6, k]
-                    t[ju, 1] += res[7, k]
-                    t[ju, 2] += res[8, k]
+                if not ordered:      # the i-side of a run in registers, the j-side in memory
+                    if i != cur:         # a new run: store the last one's i-side, load this one's
+                        cur, fi0, fi1, fi2, ti0, ti1, ti2 = next_run(f, t, cur, i, fi0, fi1, fi2, ti0,
+                                                                     ti1, ti2)
+                    if j == cur:         # a self image (tiny periodic cell): both ends in memory
+                        store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
+                        cur = -1
+                        scatter_pair(i, j, f, t, res[:9, k])
+                    else:                # as pair_loads.scatter_pair, the i-side in registers
+                        fi0 += o0
+                        fi1 += o1
+                        fi2 += o2
+                        ju = np.uint64(j)
+                        f[ju, 0] -= o0
+                        f[ju, 1] -= o1
+                        f[ju, 2] -= o2
+                        ti0 += res[3, k]
+                        ti1 += res[4, k]
+                        ti2 += res[5, k]
+                        t[ju, 0] += res[6, k]
+                        t[ju, 1] += res[7, k]
+                        t[ju, 2] += res[8, k]
                 if i < n_owned:   # counted once over the ranks (the owner of the lower gid)
                     b0 = gat[0, k]
                     b1 = gat[1, k]
@@ -336,7 +360,7 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_wid
                     a20 += b2 * o0
                     a21 += b2 * o1
                     a22 += b2 * o2
-        if cur >= 0:
+        if cur >= 0:         # (never when ordered)
             store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
         add_love_weber(acc, a00, a01, a02, a10, a11, a12, a20, a21, a22, count)
         if exact:
@@ -434,7 +458,7 @@ def law_interface(pair_function, constants, history_width, reads_mass=None):
     the masses; None: always) (see the module docstring)."""
 
     def compute(params, elements, i, j, history, dt, shift=None, rate=None, acc=None,
-                with_energy=True, xacc=None, with_stress=True):
+                with_energy=True, xacc=None, with_stress=True, order=None):
         """Add the contact forces of the pairs ``(i[p], j[p])`` to ``elements.f``/``elements.t``.
 
         i, j : [n_pairs] rows (ordered by gid within each pair); history : [n_pairs, width]
@@ -449,20 +473,34 @@ def law_interface(pair_function, constants, history_width, reads_mass=None):
         the energy go there, exactly (added to), ``acc`` gets the contact count only, and the
         return value is 0 (NaN on a non-finite term). with_stress False: ``acc`` gets the
         contact count only (the Love-Weber sums are left out; ignored with ``xacc``).
+        order : optional ``(order, i_c, j_c, shift_c, loads, inc_start, inc)``: compute the
+        pairs in the order ``order`` (``i_c, j_c, shift_c`` the pairs and shifts in that order,
+        ``loads`` [n_pairs, 12] scratch) and add their loads in list order
+        (``pair_lists.compute_order``): the same bits; needs ``xacc``, or neither the energy
+        nor the stress (their float sums would follow the computing order).
         """
         e = elements
         check_pairs(i, j, history, shift, history_width(params))
+        if order is not None and xacc is None and (with_energy or with_stress):
+            raise ValueError("compute(order=...) needs the exact sums (xacc), or neither the energy "
+                             "nor the stress")
         forces, engaged = pair_function(params)
         sheared = rate is not None and len(rate) == 6
         loop = pair_loop(forces, engaged, shift is not None,
                          rate is not None and (sheared or any_rate(rate)), bool(with_energy),
                          xacc is not None, bool(with_stress), history_width=history.shape[1],
                          with_mass=True if reads_mass is None else bool(reads_mass(params)),
-                         sheared=sheared)
+                         sheared=sheared, ordered=order is not None)
+        if order is not None:
+            q, i, j, shift, loads, inc_start, inc = order
+        else:
+            q, loads = NO_ORDER, NO_LOADS
         energy = loop(i, j, NO_SHIFT if shift is None else shift, NO_RATE if rate is None else rate,
                       e.x, e.v, e.w, e.radius, e.mass, e.f, e.t, history, float(dt),
                       constants(params, dt), e.n_owned, np.zeros(10) if acc is None else acc,
-                      NO_XACC if xacc is None else xacc)
+                      NO_XACC if xacc is None else xacc, q, loads)
+        if order is not None:
+            add_in_order(loads, inc_start, inc, e.f, e.t)
         if xacc is not None:
             return energy
         return energy if with_energy else float("nan")

@@ -1,0 +1,160 @@
+"""The rebuild kernels of a contact list (pardem.physics.pair_lists) against NumPy oracles, and the
+property they and every reordering rely on: a reproducible run's state by gid does not depend on
+the order in which its rows are stored.
+
+* ``order_by_key``: the pairs in the order of a stable NumPy sort of their keys (``gid_i * 2^31 +
+  gid_j``), with random gids, random pair order, ghost rows and runs of many pairs per first end;
+* ``carry_history``: the rows of the table for the keys, as ``contacts.lookup`` (sort + binary
+  search) finds them, for key-ordered and unordered tables, duplicates, absent keys and rows of
+  signed zeros (``Contacts.table`` leaves them out, so they come back as +0.0);
+* ``shift_metres_into``: NumPy's ``shifts * period``, bit for bit;
+* a GRAN-SHEAR-like sheared periodic packing (polydisperse, Hertz-Mindlin with friction, rebuilds
+  during the run) built from the same particles stored in two row orders gives, after the run, the
+  same bits by gid for x, v, w, f, t and the same contact history by key.
+"""
+import numpy as np
+import pytest
+
+from pardem.engine import contacts as contacts_mod
+from pardem.engine.contacts import lookup, pair_keys
+from pardem.engine.system import Cell, ContactModel, Decomposition, Integration, Particles, System, build
+from pardem.parallel.communicator import Communicator
+from pardem.physics.pair_lists import carry_history, order_by_key, shift_metres_into
+
+
+def random_pairs(rng, n_rows, n_pairs, gid):
+    """Unique row pairs oriented by gid, in random order, with random int8 shifts."""
+    a = rng.integers(0, n_rows, 4 * n_pairs)
+    b = rng.integers(0, n_rows, 4 * n_pairs)
+    keep = a != b
+    a, b = a[keep], b[keep]
+    swap = gid[a] > gid[b]
+    a, b = np.where(swap, b, a), np.where(swap, a, b)
+    _, first = np.unique(pair_keys(gid[a], gid[b]), return_index=True)
+    first = rng.permutation(first)[:n_pairs]
+    pairs = np.stack([a[first], b[first]], axis=1).astype(np.int32)
+    shifts = rng.integers(-1, 2, (len(pairs), 3)).astype(np.int8)
+    return pairs, shifts
+
+
+@pytest.mark.parametrize("n_rows, n_pairs", [(1, 0), (2, 1), (50, 300), (2000, 9000), (30, 400)])
+def test_order_by_key_is_the_sort_of_the_keys(n_rows, n_pairs):
+    rng = np.random.default_rng(n_rows + n_pairs)
+    gid = rng.permutation(10 * n_rows)[:n_rows].astype(np.int64)      # sparse, shuffled gids
+    pairs, shifts = random_pairs(rng, n_rows, n_pairs, gid)
+    keys = pair_keys(gid[pairs[:, 0]], gid[pairs[:, 1]])
+    order = np.argsort(keys, kind="stable")
+    i, j, s, k = order_by_key(pairs, shifts, gid, n_rows)
+    np.testing.assert_array_equal(i, pairs[order, 0])
+    np.testing.assert_array_equal(j, pairs[order, 1])
+    np.testing.assert_array_equal(s, shifts[order])
+    np.testing.assert_array_equal(k, keys[order])
+
+
+def test_carry_history_equals_lookup():
+    rng = np.random.default_rng(7)
+    keys = np.unique(rng.integers(0, 5000, 800)).astype(np.int64)
+    table_keys = np.concatenate([rng.choice(keys, 300, replace=False), rng.integers(0, 5000, 200)])
+    values = rng.normal(size=(len(table_keys), 3))
+    values[5] = 0.0
+    values[6] = -0.0                       # signed zeros: not in Contacts.table, so +0.0 back
+    values[7, 1] = -0.0                    # a live row keeps its signed zero
+    values[8:12] = 0.0
+    table_keys = np.concatenate([table_keys, table_keys[:40]])            # duplicates (two ranks' parts)
+    values = np.concatenate([values, values[:40]])
+    values[-35] = 0.0                      # ... one of them not live: the live one is taken
+    for tk, tv in ((table_keys, values), (np.sort(table_keys), values[np.argsort(table_keys, kind="stable")])):
+        live = np.any(tv != 0.0, axis=1)
+        want = lookup(keys, tk[live], tv[live], 3)
+        got = carry_history(keys, tk, tv, 3)
+        assert got.tobytes() == want.tobytes()
+    assert carry_history(keys, np.zeros(0, np.int64), np.zeros((0, 3)), 3).tobytes() == np.zeros((len(keys), 3)).tobytes()
+
+
+def test_shift_metres_into_is_numpy_product():
+    rng = np.random.default_rng(3)
+    shifts = rng.integers(-3, 4, (1000, 3)).astype(np.int8)
+    period = np.array([1.2345678901e-3, 0.0, 7.1e-3])
+    out = np.empty((1000, 3))
+    shift_metres_into(shifts, period, out)
+    assert out.tobytes() == (shifts * period).tobytes()
+
+
+def sheared_packing():
+    """A dense polydisperse packing (jittered lattice, radii +-20 %, overlapping) in a periodic
+    cell in pure shear at 1e4 1/s, with random velocities and spins."""
+    rng = np.random.default_rng(11)
+    n, R = 6, 0.1e-3
+    g = (np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) * 2 * R
+    x = g + rng.uniform(-0.05, 0.05, g.shape) * R
+    r = R * rng.uniform(0.8, 1.2, len(x)) * 1.02
+    side = n * 2 * R
+    return System(Particles(x, r, 2500.0, velocities=rng.normal(0.0, 1.0, x.shape),
+                            angular_velocities=rng.normal(0.0, 500.0, x.shape), allow_overlaps=True),
+                  contacts=ContactModel("hertz_mindlin", {"young": 72e9, "poisson": 0.2, "friction": 0.5}),
+                  cell=Cell((0, 0, 0), (side, side, side), rate=(1e4, -1e4, 0.0)),
+                  integration=Integration(dt=2e-8, orientation=False),
+                  decomposition=Decomposition(slab_axis=0, skin=0.1 * R))
+
+
+def permute_rows(sim, perm):
+    """Store the rows of a single-process simulation in the order ``perm`` (every per-element
+    array, in place), then rebuild its contact list."""
+    e = sim.elements
+    n = e.n_total
+    for name, a in list(vars(e).items()) + list(e.properties.items()):
+        if isinstance(a, np.ndarray) and a.ndim and a.shape[0] == n:
+            a[:] = a[perm]
+    sim.contacts.rebuild(e, sim.bonds)
+
+
+def by_gid(sim):
+    e = sim.elements
+    o = np.argsort(e.gid[:e.n_owned])
+    state = {k: getattr(e, k)[:e.n_owned][o].tobytes() for k in ("x", "v", "w", "f", "t")}
+    c = sim.contacts
+    ko = np.argsort(c.keys)
+    state["keys"] = c.keys[ko].tobytes()
+    state["history"] = c.history[ko].tobytes()
+    return state
+
+
+def test_state_by_gid_does_not_depend_on_row_order():
+    """A reproducible run adds every element's loads in an order fixed by gids (pairs in key
+    order), and every global decision (rebuild, wrap) is a max or a per-row rule: the same
+    particles (same gids) stored in another row order end in the same bits."""
+    comm = Communicator()
+    runs = []
+    for perm in (None, np.random.default_rng(5).permutation(216)):
+        sim = build(comm, sheared_packing())
+        if perm is not None:
+            permute_rows(sim, perm)
+            assert np.any(sim.elements.gid != np.arange(216))
+        b0 = sim.contacts.builds
+        sim.run(300)
+        runs.append((by_gid(sim), sim.contacts.builds - b0))
+    (a, builds_a), (b, builds_b) = runs
+    assert 3 < builds_a < 150    # the lists were rebuilt during the run (the path under test)
+    assert builds_a == builds_b
+    for k in a:
+        assert a[k] == b[k], k
+
+
+def test_spatial_sort_keeps_the_bits(monkeypatch):
+    """Rows stored in spatial order at every rebuild, pairs computed by first row and their loads
+    added in key order (``Contacts.sort_rows``): the same bits by gid as the list order, also for
+    a packing whose rows start in a random order; the rows were indeed reordered."""
+    monkeypatch.setattr(contacts_mod, "SORT_MIN_ROWS", 0)    # sort these 216 rows too
+    comm = Communicator()
+    runs = []
+    for sort in (False, True):
+        sim = build(comm, sheared_packing())
+        permute_rows(sim, np.random.default_rng(8).permutation(216))
+        sim.contacts.sort_rows = sort
+        sim.run(150)
+        sim.run(150)                      # a second run: the energy steps at the runs' ends
+        runs.append((by_gid(sim), sim.elements.gid.copy()))
+    (a, rows_a), (b, rows_b) = runs
+    assert not np.array_equal(rows_a, rows_b)
+    for k in a:
+        assert a[k] == b[k], k
