@@ -10,6 +10,7 @@ the recipe of one step (ARCHITECTURE.md repeats it). Around the steps, ``run`` c
   for those whose ``at_end`` is true, in list order (``sim.operations`` first, then those given to
   ``run``); never otherwise.
 """
+import math
 import os
 import time as _time
 from typing import Protocol
@@ -82,8 +83,8 @@ def _trigger_of(op):
     return as_trigger(op.trigger, f"trigger of {type(op).__name__}")
 
 
-# the largest displacement of an element in one step, as a fraction of the smallest radius: more
-# is a runaway, not motion the step resolves (docs/physics.md, "Stability check")
+# the default largest displacement of an element in one step, as a fraction of the smallest
+# radius: more is a runaway, not motion the step resolves (docs/physics.md, "Stability check")
 STEP_DISPLACEMENT = 0.1
 # ... unless the loading itself drives the elements that fast: a plate moving at v makes speeds of
 # the order of v, never this many times more
@@ -94,7 +95,8 @@ class Simulation:
     """Bonded and contacting elements (between plates, or in a periodic cell) on one rank.
 
     dt [s] must already be checked against the critical step. The run is declared unstable when
-    an element moves more than ``STEP_DISPLACEMENT`` of the smallest radius in one step
+    an element moves more than ``max_step_displacement`` (default ``STEP_DISPLACEMENT``) of the
+    smallest radius in one step
     (``|v| dt``, checked at every step of ``run``; or more than ``LOADING_SPEEDS`` times the
     plates' speed, if that is more), or faster than ``max_speed`` [m/s] (default: far above any
     physical DEM speed).
@@ -110,7 +112,8 @@ class Simulation:
     """
 
     def __init__(self, comm, elements, bonds, plates, dt, max_speed=1e4, check_every=50, domain=None,
-                 contacts=None, cell=None, viscous_damping=0.0, orientation=True):
+                 contacts=None, cell=None, viscous_damping=0.0, orientation=True,
+                 max_step_displacement=STEP_DISPLACEMENT):
         self.comm = comm
         self.elements = elements
         self.bonds = bonds
@@ -122,6 +125,7 @@ class Simulation:
         self.bond_energy = 0.0
         self.plate_energy = 0.0
         self.max_speed2 = float(max_speed) ** 2
+        self.step_displacement = float(max_step_displacement)
         self._speed_limit2 = self.max_speed2    # with the displacement bound once ``run`` knows r_min
         self._r_min = None              # the smallest radius [m] over ranks (``run``)
         self.check_every = int(check_every)
@@ -300,17 +304,20 @@ class Simulation:
 
     def _set_speed_limit(self):
         """The speed above which a step is a runaway [m/s], squared: ``max_speed``, and, once
-        ``run`` has measured ``r_min``, ``STEP_DISPLACEMENT r_min / dt`` (or ``LOADING_SPEEDS``
+        ``run`` has measured ``r_min``, ``step_displacement r_min / dt`` (or ``LOADING_SPEEDS``
         times the plates' speed, if more) when that is less."""
         limit2 = self.max_speed2
-        if self._r_min is not None and self.dt > 0.0:
+        # without anything stiff (no bond, wall or contact: an infinite critical step) no
+        # interaction has a motion per step to resolve: a free flight is never a runaway
+        stiff = math.isfinite(getattr(self, "dt_critical", 0.0))
+        if self._r_min is not None and self.dt > 0.0 and stiff:
             loading = LOADING_SPEEDS * abs(float(getattr(self.plates, "speed", 0.0) or 0.0))
-            limit2 = min(limit2, max(STEP_DISPLACEMENT * self._r_min / self.dt, loading) ** 2)
+            limit2 = min(limit2, max(self.step_displacement * self._r_min / self.dt, loading) ** 2)
         self._speed_limit2 = limit2
 
     @property
     def speed_limit(self):
-        """The speed [m/s] above which the run is declared unstable (``STEP_DISPLACEMENT`` of the
+        """The speed [m/s] above which the run is declared unstable (``step_displacement`` of the
         smallest radius per step, at most ``max_speed``); ``max_speed`` before the first ``run``."""
         return float(np.sqrt(self._speed_limit2))
 
@@ -342,7 +349,7 @@ class Simulation:
         if unstable:
             raise InstabilityError(
                 f"at step {self.step_count} (t = {self.time:.6g} s): NaN or speed above the limit "
-                f"({self.speed_limit:.4g} m/s: {STEP_DISPLACEMENT:g} of the smallest radius per step or "
+                f"({self.speed_limit:.4g} m/s: {self.step_displacement:g} of the smallest radius per step or "
                 f"{LOADING_SPEEDS:g} times the plates' speed, at most max_speed; or a non-finite position, "
                 f"velocity, force or state)")
         if signum:

@@ -160,14 +160,18 @@ class Integration:
 
     dt [s] : the time step (None: ``dt_fraction`` of the critical step; a dt above the critical
     step is refused); viscous_damping [1/s] : global drag ``-C m v``, ``-C I w``; max_speed [m/s] :
-    speed above which the run is declared unstable; check_every [steps] : stability checks;
-    orientation : integrate the orientations (False for granular runs nothing reads them in;
-    bonds need them).
+    speed above which the run is declared unstable; max_step_displacement : the largest
+    displacement of an element in one step, as a fraction of the smallest radius, beyond which the
+    run is a runaway (``Simulation.speed_limit``; raise it for a stage that is violent on purpose,
+    such as a random gas with deep overlaps pushed apart); check_every [steps] : stability
+    checks; orientation : integrate the orientations (False for granular runs nothing reads them
+    in; bonds need them).
     """
     dt: float = None
     dt_fraction: float = 0.3
     viscous_damping: float = 0.0
     max_speed: float = 1e4
+    max_step_displacement: float = 0.1
     check_every: int = 50
     orientation: bool = True
 
@@ -434,7 +438,7 @@ def build(comm, system):
     # a placeholder step, replaced once the critical step is known
     sim = Simulation(comm, elements, bonds, None, 1.0, max_speed=integ.max_speed, check_every=integ.check_every,
                      domain=domain, contacts=contacts, cell=cell, viscous_damping=integ.viscous_damping,
-                     orientation=integ.orientation)
+                     orientation=integ.orientation, max_step_displacement=integ.max_step_displacement)
     if dim == 2:
         sim.fixes.append(PlaneConstraint(0.0))
     if system.walls is not None:
@@ -550,6 +554,8 @@ def _check_integration(integ):
         _positive(integ.dt, "Integration.dt", "[s] (or None for dt_fraction of the critical step)")
     inputs.check_viscous_damping(integ.viscous_damping, "Integration.viscous_damping")
     _positive(integ.max_speed, "Integration.max_speed", "[m/s]")
+    _positive(integ.max_step_displacement, "Integration.max_step_displacement",
+              "(a fraction of the smallest radius per step)")
     k = integ.check_every
     if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or k < 1:
         raise ValueError(f"Integration.check_every must be an integer >= 1 [steps], got {k!r}")
@@ -601,7 +607,7 @@ def describe(sim):
         cell = replace(base.cell if base.cell is not None else Cell(), state=sim.cell.state())
     integ = replace(base.integration, dt=float(sim.dt), viscous_damping=float(sim.viscous_damping),
                     max_speed=float(math.sqrt(sim.max_speed2)), check_every=int(sim.check_every),
-                    orientation=bool(sim.orientation))
+                    orientation=bool(sim.orientation), max_step_displacement=float(sim.step_displacement))
     d = sim.domain
     dec = base.decomposition
     if d is not None:
@@ -655,7 +661,8 @@ def restore(comm, system, parts, cell, density):
         walls = w.make()
     sim = Simulation(comm, parts.elements, parts.bonds, walls, integ.dt, max_speed=integ.max_speed,
                      check_every=integ.check_every, domain=parts.domain, contacts=parts.contacts, cell=cell,
-                     viscous_damping=integ.viscous_damping, orientation=integ.orientation)
+                     viscous_damping=integ.viscous_damping, orientation=integ.orientation,
+                     max_step_displacement=integ.max_step_displacement)
     if int(system.dimension) == 2:
         sim.fixes.append(PlaneConstraint(0.0))
     if walls is not None:
