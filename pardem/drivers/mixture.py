@@ -39,6 +39,7 @@ from pardem.io.summary import write_json
 from pardem.parallel import task_farm
 from pardem.parallel.communicator import Communicator
 from pardem.protocols import isotropic as iso
+from pardem.protocols import stages
 from pardem.protocols import mixture_study as study
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -85,7 +86,7 @@ def make_plan(args, deck):
                       realisations=option_number("--realisations", opt["realisations"], 1, 1000, integer=True),
                       pressure=option_number("--pressure", opt["pressure"], 1.0, 1e9),
                       mean_radius=option_number("--mean-radius", opt["mean_radius"], 1e-9, 1.0),
-                      n=int(deck["sample"]["n"]), dimension=iso.dimension(deck), seed=int(deck["sample"]["seed"]))
+                      n=int(deck["sample"]["n"]), dimension=stages.dimension(deck), seed=int(deck["sample"]["seed"]))
 
 
 def run(comm, args):
