@@ -329,7 +329,7 @@ def prepared_files(packing, tmp_path_factory):
 
 def residual_loads(sim):
     """Unbalanced forces and torques [n, 3] of the owned grains in gid order (one rank), the
-    viscous drag of the step removed (as ``isotropic.balance``); 2D: in-plane components only."""
+    viscous drag of the step removed (as ``engine.packing.balance``); 2D: in-plane components only."""
     el = sim.elements
     n = el.n_owned
     vh = el.v[:n] - 0.5 * sim.dt * el.f[:n] * el.inv_mass[:n, None]

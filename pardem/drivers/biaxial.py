@@ -127,6 +127,12 @@ class Biaxial(GranularDriver):
         if cur["stage"] in ("settle", "load"):
             self.mem, *self.platens = biaxial.install(case, run.deck, cur["pc"], cur["geo"], cur["membrane"],
                                                       moving=cur["stage"] == "load", restored=True)
+            total = cur.get("platen_reactions")
+            if total is not None:
+                # the last force evaluation's platen reactions (a sample replayed on restart reads
+                # them): their total on rank 0, so that the samples' sum over the ranks is it exactly
+                for fix, r in zip(self.platens, np.reshape(total, (2, 3))):
+                    fix.reaction[:] = r if run.comm.is_root else 0.0
         series = run.meta["series"]
         for w in {int(k.split("_")[1]) for k in series if k.startswith("window_")}:
             snap = {k: np.asarray(series[f"window_{w}_{k}"]) for k in SNAP_KEYS}
@@ -143,6 +149,8 @@ class Biaxial(GranularDriver):
             cur["sweep"] = self.sweep.snapshot(interrupted=run.interrupted is not None)
         # a stop signal ends a step before its operations: the resumed loading runs them first
         cur["replay"] = run.interrupted is not None
+        cur["platen_reactions"] = (run.comm.sum(np.concatenate([p.reaction for p in self.platens])).tolist()
+                                   if self.platens else None)       # collective: every rank writes the payload
         clock = self.clock.state(run.sim.step_count) if self.clock is not None else run.state.get("clock")
         return {**run.state, "current": cur, "clock": clock}
 

@@ -36,7 +36,7 @@ Protocol (any number of ranks; every step is collective):
    unbalanced force is below ``relax.force_tolerance`` of the mean contact force (``"auto"``:
    ``0.01 load.fraction / (2 N)``, so that the residual forces of the N grains move at most 1 % of
    the load, ``residual_share``) and the kinetic
-   energy below ``relax.kinetic_tolerance`` (``pardem.protocols.isotropic.relax``).
+   energy below ``relax.kinetic_tolerance`` (``pardem.protocols.stages.relax``).
 5. **Load.** The grain at the top centre (the highest grain not held by a row, the top row's
    grains included with ``"free"``, whose centre lies within one mean diameter of
    ``x = x_lo + L_x / 2``) gets the extra force ``(0, -F, 0)`` with
@@ -334,7 +334,7 @@ def gather_state(sim):
 
 def prepared(comm, deck, progress=None):
     """The frictionless packing at ``preparation.pressure`` in its periodic cell (step 1), and the
-    preparation's info (``isotropic.prepare``)."""
+    preparation's info (``stages.prepare``)."""
     d = iso_deck(deck)
     case, info = stages.prepare(comm, d, deck["preparation"]["pressure"], progress=progress)
     case.sim.elements.v[:] = 0.0
@@ -555,7 +555,7 @@ def wave_speed(layer):
 
 
 class _Run:
-    """What ``isotropic.relax`` needs of a run: operations, a check callback, the stop step."""
+    """What ``stages.relax`` needs of a run: operations, a check callback, the stop step."""
 
     def __init__(self, operations=(), on_check=None, stop=None):
         self.operations = list(operations)
