@@ -18,7 +18,7 @@ from pardem import restart
 import pytest
 
 from pardem.domains.gas import gas
-from pardem.engine import packing
+from pardem.engine.packing import contact_forces
 from pardem.engine.open_cell import open_axes
 from pardem.parallel.communicator import Communicator
 from pardem.physics import hertz_mindlin
@@ -486,14 +486,14 @@ def test_pair_stress_counts_the_cements_as_the_force_kernel_does():
                                  loading={"strain_rate": 50.0, "strain": 1e-3, "restitution": 1.0})
     sim = case.sim
     assert rows[-1]["cements_broken"] > 0
-    cf = packing.contact_forces(sim, cement=True)
+    cf = contact_forces(sim, cement=True)
     state = sim.contacts.history[:, hertz_mindlin.CEMENT_STATE]
     assert np.count_nonzero(cf["intact"]) > 0 and np.count_nonzero(state < 0) > 0   # intact and fading
     lw = biaxial.contact_measures(sim, np.zeros(0, np.int64))[0]
     kernel = np.asarray(sim.contacts.global_sums(sim.comm)[0]).reshape(3, 3)[:2, :2]
     tol = 1e-10 * np.abs(kernel).max()
     assert np.abs(lw - kernel).max() <= tol, (lw, kernel)
-    plain = packing.contact_forces(sim)
+    plain = contact_forces(sim)
     d, F = plain["branch"], plain["force"]
     lw0 = np.array([[np.sum(d[:, a] * F[:, b]) for b in range(2)] for a in range(2)])
     assert np.abs(lw0 - kernel).max() > 1e3 * tol, (lw0, kernel)
