@@ -28,7 +28,7 @@ from pardem.physics import hertz_mindlin
 from pardem.physics import linear_response as lr
 from pardem.physics.hertz_mindlin import effective_moduli
 from pardem.protocols import isotropic as iso
-from pardem.engine import packing
+from pardem.engine.packing import network
 from pardem.protocols import stages
 from pardem.protocols import moduli_check
 
@@ -52,7 +52,7 @@ def packing():
     g = moduli_check.gather_network(sim)
     net = lr.hertz_mindlin_branches(g["n"], g["i"], g["j"], g["d"], g["radius"], g["volume"], E_STAR, G_STAR)
     return {"deck": deck, "case": case, "sim": sim, "g": g, "net": net,
-            "strain": 0.01 * packing.network(sim)["mean_overlap_ratio"]}
+            "strain": 0.01 * network(sim)["mean_overlap_ratio"]}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -387,7 +387,7 @@ def measure(path, deck, dim, friction, ramp):
     sim.elements.v[:] = 0.0
     sim.elements.w[:] = 0.0
     d = dict(deck, material=dict(deck["material"], friction=friction), moduli=dict(deck["moduli"], ramp_steps=ramp))
-    e = 0.01 * packing.network(sim)["mean_overlap_ratio"]
+    e = 0.01 * network(sim)["mean_overlap_ratio"]
     static = moduli_check.compact(moduli_check.static_moduli(sim, d["material"], e))
     g = moduli_check.gather_network(sim)
     net = lr.hertz_mindlin_branches(g["n"], g["i"], g["j"], g["d"], g["radius"], g["volume"], E_STAR, G_STAR)
