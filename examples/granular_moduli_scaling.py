@@ -52,6 +52,8 @@ import numpy as np
 from pardem.io.deck_file import load_deck
 from pardem.parallel.communicator import Communicator
 from pardem.protocols import isotropic as iso
+from pardem.engine import packing
+from pardem.protocols import stages
 from pardem.protocols import moduli_check
 
 DECK = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "drivers", "isotropic_small.toml")
@@ -69,11 +71,11 @@ def study(n, pressures, friction, seed=1, comm=None):
     case, rows = None, []
     for p0 in sorted(pressures):
         t0 = time.perf_counter()
-        case, info = iso.prepare(comm, deck, p0, case)
+        case, info = stages.prepare(comm, deck, p0, case)
         sim = case.sim
         sim.elements.v[:] = 0.0
         sim.elements.w[:] = 0.0
-        net = iso.network(sim)
+        net = packing.network(sim)
         e = 0.01 * net["mean_overlap_ratio"]          # the protocol's "auto" strain (isotropic.strain_of)
         # the static response first: it linearises the frictionless equilibrium, before any increment
         static = moduli_check.static_moduli(sim, deck["material"], e)

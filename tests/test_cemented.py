@@ -310,14 +310,14 @@ def test_rebuild_reports_an_intact_cement_out_of_reach():
 
 
 def test_contact_forces_count_cemented_pairs_apart_and_fading_as_the_kernel_applies_them():
-    """``isotropic.contact_forces(sim, cement=True)`` rebuilds each pair's force from its history
+    """``packing.contact_forces(sim, cement=True)`` rebuilds each pair's force from its history
     (NumPy): it must include a pair pulled apart that an intact cement holds and a fading one, with
     the force the kernel applied. A chain of four spheres, cemented, then the first pulled apart
     (intact cement in tension, sliding sideways) and the last pair's cement set fading: the end
     spheres have one pair each, so the kernel's total force on them is that pair's force.
     Tolerance: round-off of the two groupings of the same terms (1e-12 of the force)."""
     from pardem.parallel.communicator import Communicator
-    from pardem.protocols import isotropic
+    from pardem.engine import packing
     overlap = 1e-7
     pos = np.array([[k * (2 * R - overlap), 0.0, 0.0] for k in range(4)])
     params = dict(PARAMS, cement_normal=SN, cement_tangential=ST, cement_fade_time=1e-7)
@@ -336,7 +336,7 @@ def test_contact_forces_count_cemented_pairs_apart_and_fading_as_the_kernel_appl
     e.f[:] = 0.0
     e.t[:] = 0.0
     sim.compute_forces()
-    cf = isotropic.contact_forces(sim, cement=True)
+    cf = packing.contact_forces(sim, cement=True)
     assert len(cf["fn"]) == 3
     first = np.flatnonzero((cf["gid_i"] == 0) & (cf["gid_j"] == 1))[0]
     end = np.flatnonzero((cf["gid_i"] == 2) & (cf["gid_j"] == 3))[0]
@@ -349,5 +349,5 @@ def test_contact_forces_count_cemented_pairs_apart_and_fading_as_the_kernel_appl
     np.testing.assert_allclose(cf["force"][first], F0, rtol=0, atol=1e-12 * np.abs(F0).max())
     np.testing.assert_allclose(cf["force"][end], F3, rtol=0, atol=1e-12 * np.abs(F3).max())
     # without the cement columns the apart pair would be missing and the fading one differ
-    plain = isotropic.contact_forces(sim)
+    plain = packing.contact_forces(sim)
     assert len(plain["fn"]) == 2

@@ -24,6 +24,8 @@ import numpy as np
 import pytest
 
 from pardem.protocols import isotropic as iso
+from pardem.engine import packing, relaxation
+from pardem.protocols import stages
 from pardem.io.deck_file import load_deck
 from pardem.parallel.communicator import Communicator
 from pardem.physics.hertz_mindlin import effective_moduli
@@ -43,7 +45,7 @@ def small_deck(*extra):
 @pytest.fixture(scope="module")
 def prepared():
     deck = small_deck()
-    case, info = iso.prepare(Communicator(), deck, P0)
+    case, info = stages.prepare(Communicator(), deck, P0)
     return deck, case, info
 
 
@@ -118,12 +120,12 @@ def second_order(c, sign, e):
 def test_equilibrium_criteria_hold_at_p0(prepared):
     deck, case, info = prepared
     tol = deck["equilibrium"]
-    b = iso.balance(case.sim, P0)
+    b = packing.balance(case.sim, P0)
     assert info["converged"]
     assert abs(b["pressure"] / P0 - 1.0) < tol["pressure_tolerance"]
     assert b["kinetic"] < tol["kinetic_tolerance"]
     assert b["unbalanced"] < tol["force_tolerance"]
-    net = iso.network(case.sim)
+    net = packing.network(case.sim)
     assert 0.62 < net["solid_fraction"] < 0.66                   # frictionless random packing
     assert net["Z_no_rattlers"] >= 6.0 - 0.02                     # isostatic (6 + O(1/N))
     assert net["Z_no_rattlers"] < 6.5 and net["Z"] <= net["Z_no_rattlers"]
@@ -139,7 +141,7 @@ def test_rattler_rule_is_iterative():
     core = [(a, b) for a in range(5) for b in range(a + 1, 5)]
     extra = [(5, 0), (5, 1), (5, 2), (5, 6)]
     gi, gj = np.array([p[0] for p in core + extra]), np.array([p[1] for p in core + extra])
-    alive, live = iso.remove_rattlers(7, gi, gj)
+    alive, live = packing.remove_rattlers(7, gi, gj)
     assert alive.tolist() == [True] * 5 + [False, False]
     assert live.sum() == len(core)
 
@@ -147,12 +149,12 @@ def test_rattler_rule_is_iterative():
 @pytest.mark.parametrize("name,sign", [("K", iso.ISOTROPIC), ("mu", iso.SHEAR)])
 def test_affine_response_against_numpy(name, sign):
     deck = small_deck()
-    case, _ = iso.prepare(Communicator(), deck, P0)     # a fresh packing: no tangential history
+    case, _ = stages.prepare(Communicator(), deck, P0)     # a fresh packing: no tangential history
     sim = case.sim
     mat = deck["material"]
     iso.measuring_contacts(sim, mat)
     x, r, L = gather_state(sim)
-    e_star, g_star = effective_moduli(iso.young_modulus(mat), mat["poisson"])
+    e_star, g_star = effective_moduli(stages.young_modulus(mat), mat["poisson"])
     s_ref, c0 = oracle_stress(x, r, L, np.zeros(3), e_star, g_star, mat["friction"])
     np.testing.assert_allclose(sim.global_stress(), s_ref, rtol=0, atol=1e-9 * P0)
     strain = 0.01 * float(np.mean(c0["delta"] / np.linalg.norm(c0["d"], axis=1)))   # the "auto" rule
@@ -357,28 +359,28 @@ def test_fire_adaptive_step():
 
 def test_fire_preparation_meets_the_criteria():
     deck = small_deck('preparation.relaxation="fire"')
-    case, info = iso.prepare(Communicator(), deck, P0)
+    case, info = stages.prepare(Communicator(), deck, P0)
     tol = deck["equilibrium"]
-    b = iso.balance(case.sim, P0)
+    b = packing.balance(case.sim, P0)
     assert info["converged"]
     assert abs(b["pressure"] / P0 - 1.0) < tol["pressure_tolerance"]
     assert b["kinetic"] < tol["kinetic_tolerance"] and b["unbalanced"] < tol["force_tolerance"]
-    net = iso.network(case.sim)
+    net = packing.network(case.sim)
     assert 0.62 < net["solid_fraction"] < 0.66 and net["Z_no_rattlers"] >= 6.0 - 0.02
-    assert case.sim.dt == pytest.approx(iso.build_gas(Communicator(), deck).sim.dt, rel=1e-15)
+    assert case.sim.dt == pytest.approx(stages.build_gas(Communicator(), deck).sim.dt, rel=1e-15)
 
 
 def test_servo_stiffness_is_the_affine_pressure_response():
     """``ServoStiffness``'s S = kd2 / (3 V) + 2 p equals -dp/de of one affine isotropic strain step
     e of a frictionless static packing, within 1 %."""
-    case, _ = iso.prepare(Communicator(), small_deck('preparation.relaxation="fire"'), P0)
+    case, _ = stages.prepare(Communicator(), small_deck('preparation.relaxation="fire"'), P0)
     sim = case.sim
     sim.stress = sim.global_stress()
-    iso.ServoStiffness()(sim)
+    relaxation.ServoStiffness()(sim)
     S = sim.cell.servo_stiffness
     sim.elements.v[:] = 0.0
     p_before = -np.trace(sim.global_stress()) / 3.0
-    e = 1e-3 * iso.network(sim)["mean_overlap_ratio"]
+    e = 1e-3 * packing.network(sim)["mean_overlap_ratio"]
     sim.cell.rate = np.full(3, e / sim.dt)
     sim.run(1)
     de = float(np.log(1.0 + e))
@@ -549,5 +551,5 @@ def test_deck_conventions():
     for name in ("isotropic_small.toml", "isotropic_glass.toml"):
         deck = load_deck(iso.SCHEMA, os.path.join(ROOT, "drivers", name), [])
         assert deck["run"]["skin"] == "auto" and "progress_seconds" in deck["run"]
-        assert iso.skin(deck, np.array(deck["sample"]["radii"])) == 0.2 * 0.095e-3
-    assert iso.skin(small_deck("run.skin=3e-5"), np.array([1e-4])) == 3e-5
+        assert stages.skin(deck, np.array(deck["sample"]["radii"])) == 0.2 * 0.095e-3
+    assert stages.skin(small_deck("run.skin=3e-5"), np.array([1e-4])) == 3e-5

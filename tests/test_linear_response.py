@@ -28,6 +28,8 @@ from pardem.physics import hertz_mindlin
 from pardem.physics import linear_response as lr
 from pardem.physics.hertz_mindlin import effective_moduli
 from pardem.protocols import isotropic as iso
+from pardem.engine.packing import network
+from pardem.protocols import stages
 from pardem.protocols import moduli_check
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -44,13 +46,13 @@ def packing():
     preparation), its gathered network and its Hertz-Mindlin ``Network``."""
     deck = load_deck(iso.SCHEMA, SMALL, [f"sample.n={N}", f"preparation.pressures=[{P0}]",
                                          'preparation.relaxation="fire"'])
-    case, info = iso.prepare(Communicator(), deck, P0)
+    case, info = stages.prepare(Communicator(), deck, P0)
     assert info["converged"]
     sim = case.sim
     g = moduli_check.gather_network(sim)
     net = lr.hertz_mindlin_branches(g["n"], g["i"], g["j"], g["d"], g["radius"], g["volume"], E_STAR, G_STAR)
     return {"deck": deck, "case": case, "sim": sim, "g": g, "net": net,
-            "strain": 0.01 * iso.network(sim)["mean_overlap_ratio"]}
+            "strain": 0.01 * network(sim)["mean_overlap_ratio"]}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -319,7 +321,7 @@ def prepared_files(packing, tmp_path_factory):
     restart.save(packing["case"].sim, extras=packing["case"].extras, path=str(d / "p3.h5"))
     deck2 = load_deck(iso.SCHEMA, SMALL, ["sample.n=100", f"preparation.pressures=[{P0}]", "domain.dimension=2",
                                           'preparation.relaxation="fire"'])
-    case2, info2 = iso.prepare(Communicator(), deck2, P0)
+    case2, info2 = stages.prepare(Communicator(), deck2, P0)
     assert info2["converged"]
     restart.save(case2.sim, extras=case2.extras, path=str(d / "p2.h5"))
     return {3: (str(d / "p3.h5"), packing["deck"]), 2: (str(d / "p2.h5"), deck2)}
@@ -327,7 +329,7 @@ def prepared_files(packing, tmp_path_factory):
 
 def residual_loads(sim):
     """Unbalanced forces and torques [n, 3] of the owned grains in gid order (one rank), the
-    viscous drag of the step removed (as ``isotropic.balance``); 2D: in-plane components only."""
+    viscous drag of the step removed (as ``engine.packing.balance``); 2D: in-plane components only."""
     el = sim.elements
     n = el.n_owned
     vh = el.v[:n] - 0.5 * sim.dt * el.f[:n] * el.inv_mass[:n, None]
@@ -385,7 +387,7 @@ def measure(path, deck, dim, friction, ramp):
     sim.elements.v[:] = 0.0
     sim.elements.w[:] = 0.0
     d = dict(deck, material=dict(deck["material"], friction=friction), moduli=dict(deck["moduli"], ramp_steps=ramp))
-    e = 0.01 * iso.network(sim)["mean_overlap_ratio"]
+    e = 0.01 * network(sim)["mean_overlap_ratio"]
     static = moduli_check.compact(moduli_check.static_moduli(sim, d["material"], e))
     g = moduli_check.gather_network(sim)
     net = lr.hertz_mindlin_branches(g["n"], g["i"], g["j"], g["d"], g["radius"], g["volume"], E_STAR, G_STAR)
@@ -395,7 +397,7 @@ def measure(path, deck, dim, friction, ramp):
     measures = mode_measures(net, g["stress"], e, modes, friction)
     # at every equilibrium check of a relaxation, its residual error; the last is the end state's
     c_end = {}
-    run = iso.SweepRun()
+    run = stages.SweepRun()
     mode = {name: (eps, fn) for name, eps, fn in modes}
 
     def on_check(sim_, b):

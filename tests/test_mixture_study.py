@@ -20,6 +20,7 @@ from pardem.io.deck_file import load_deck
 from pardem.parallel.communicator import Communicator
 from pardem.physics import structure
 from pardem.protocols import isotropic as iso
+from pardem.domains.gas import species_radii
 from pardem.protocols import mixture_study as study
 
 MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
@@ -45,7 +46,7 @@ def test_the_plan_keeps_ratio_one_once_and_the_cases_realise_the_sizes():
     # by hand: 25 small grains of R_s and 75 of 2 R_s with number mean 1e-4 m: R_s (0.25 + 0.75 * 2) = 1e-4
     rs = 1e-4 / 1.75
     assert d["sample"]["radii"] == pytest.approx([rs, 2 * rs], rel=1e-15)
-    r = iso.species_radii(N, d["sample"]["radii"], d["sample"]["fractions"], np.random.default_rng(0))
+    r = species_radii(N, d["sample"]["radii"], d["sample"]["fractions"], np.random.default_rng(0))
     assert np.sum(r < 1.5 * rs) == 25 and r.mean() == pytest.approx(1e-4, rel=1e-14)
     assert d["sample"]["seed"] == deck["sample"]["seed"] + 1 and d["preparation"]["pressures"] == [1e5]
     # by volume: c_v = 0.5 at R_l/R_s = 2 means 8 small grains per large one (x = 8/9): 89 of 100

@@ -227,7 +227,7 @@ def test_servo_stiffness_of_the_2d_cell_is_minus_dp_de():
     """``ServoStiffness`` in 2D, ``S = kd2 / (2 V) + p``, against ``-dp/de`` of the in-plane
     pressure ``p = sum f_n |d| / (2 V)`` under the isotropic in-plane strain ``d -> (1 + e) d``,
     ``V -> (1 + e)^2 V`` (numpy pairs and central differences, as the virial test)."""
-    from pardem.protocols.isotropic import ServoStiffness
+    from pardem.engine.relaxation import ServoStiffness
     pos, radii, L, _, _ = planar_packing(8, seed=11)
     case = build(2, pos, radii, L, None, None, rate=(0.0, 0.0, 0.0), servo=(1e6, 1e-9, 1.0))
     sim = case.sim

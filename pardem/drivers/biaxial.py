@@ -33,9 +33,11 @@ localised window's band against the band's share of all cements. The cement law 
 the strain at rupture is that of the first sample at which a cement was no longer intact
 (``biaxial.CementRecord``, resolution ``loading.strain / output.samples``);
 checkpoints in ``DIR/checkpoints`` and ParaView snapshots in ``DIR/paraview``
-(``output.vtk_every``). ``--restart DIR/checkpoints/checkpoint-<step>.h5`` continues a run (bit
-for bit on the same number of ranks once the sample is opened; a checkpoint of the preparation
-restarts its relaxation); ``--steps N`` stops it at step N (counted from the run's start).
+(``output.vtk_every``). ``--restart DIR/checkpoints/checkpoint-<step>.h5`` continues a run from any stage (the
+preparation with its FIRE state and servo, the settling, the loading, a membrane rebuild's step:
+bit for bit on the same number of ranks); ``--steps N`` stops it at step N (counted from the run's
+start, over all stages, the preparation included), leaving a checkpoint to continue from. The
+stages of each pressure are ``pardem.protocols.biaxial.STAGES``, run by ``stages.run_stages``.
 
 Exit codes: 0 done, 1 unexpected error (all ranks stop), 2 bad input (one line naming the field),
 3 the run became unstable.
@@ -55,6 +57,7 @@ from pardem.io import biaxial_plot
 from pardem.physics import shear_band
 from pardem.protocols import biaxial
 from pardem.protocols import granular_output as gout
+from pardem.protocols import stages
 
 RESTART_MAY_CHANGE = ("run.progress_seconds", "run.watchdog_seconds", "run.slab_axis")
 SNAP_KEYS = ("gid", "x", "theta", "pair_i", "pair_j", "cements")
@@ -87,8 +90,10 @@ def band_line(window):
 
 
 def fresh_state(index, pc):
-    return {"index": index, "pc": pc, "stage": "prepare", "prep": None, "geo": None, "settle_start": None,
-            "reference": None, "events_done": [], "windows": [], "membrane": None}
+    """The state of confining pressure ``index`` before its first stage (``biaxial.STAGES``);
+    ``sweep``: the preparation's ``stages.SweepRun`` state while it runs."""
+    return {"index": index, "pc": pc, "stage": biaxial.STAGES[0], "prep": None, "geo": None, "settle_start": None,
+            "reference": None, "events_done": [], "windows": [], "membrane": None, "sweep": None}
 
 
 class Biaxial(GranularDriver):
@@ -106,6 +111,7 @@ class Biaxial(GranularDriver):
         self.pending = {}        # localisation window -> snapshot of its start
         self.record = None       # cemented: biaxial.CementRecord of the current loading
         self.clock = None        # gout.StageClock: wall seconds and steps per stage
+        self.sweep = None        # the preparation's stages.SweepRun while it runs (its state goes into checkpoints)
 
     def check(self, run, deck):
         if deck["run"]["slab_axis"] == "z":
@@ -114,7 +120,7 @@ class Biaxial(GranularDriver):
     def build(self, run):
         pcs = run.deck["loading"]["confining_pressures"]
         run.state = {"driver": "biaxial", "results": [], "current": fresh_state(0, pcs[0])}
-        return biaxial.isotropic.build_gas(run.comm, biaxial.iso_deck(run.deck))
+        return stages.build_gas(run.comm, biaxial.iso_deck(run.deck))
 
     def restore(self, run):
         case = super().restore(run)
@@ -122,6 +128,12 @@ class Biaxial(GranularDriver):
         if cur["stage"] in ("settle", "load"):
             self.mem, *self.platens = biaxial.install(case, run.deck, cur["pc"], cur["geo"], cur["membrane"],
                                                       moving=cur["stage"] == "load", restored=True)
+            total = cur.get("platen_reactions")
+            if total is not None:
+                # the last force evaluation's platen reactions (a sample replayed on restart reads
+                # them): their total on rank 0, so that the samples' sum over the ranks is it exactly
+                for fix, r in zip(self.platens, np.reshape(total, (2, 3))):
+                    fix.reaction[:] = r if run.comm.is_root else 0.0
         series = run.meta["series"]
         for w in {int(k.split("_")[1]) for k in series if k.startswith("window_")}:
             snap = {k: np.asarray(series[f"window_{w}_{k}"]) for k in SNAP_KEYS}
@@ -134,6 +146,12 @@ class Biaxial(GranularDriver):
     def protocol_state(self, run):
         cur = dict(run.state["current"])
         cur["membrane"] = self.mem.state() if self.mem is not None else None
+        if self.sweep is not None:
+            cur["sweep"] = self.sweep.snapshot(interrupted=run.interrupted is not None)
+        # a stop signal ends a step before its operations: the resumed loading runs them first
+        cur["replay"] = run.interrupted is not None
+        cur["platen_reactions"] = (run.comm.sum(np.concatenate([p.reaction for p in self.platens])).tolist()
+                                   if self.platens else None)       # collective: every rank writes the payload
         clock = self.clock.state(run.sim.step_count) if self.clock is not None else run.state.get("clock")
         return {**run.state, "current": cur, "clock": clock}
 
@@ -160,91 +178,117 @@ class Biaxial(GranularDriver):
                          + (f"; restarted from {run.args.restart} (step {run.sim.step_count}, "
                             f"{run.state['current']['stage']})" if run.meta else ""))
 
-    # -- the run ------------------------------------------------------------------------
+    # -- the run: the protocol's stages (biaxial.STAGES) per confining pressure ----------------
 
     def execute(self, run):
-        deck, progress, stop = run.deck, run.progress, run.args.steps
-        pcs = deck["loading"]["confining_pressures"]
+        pcs = run.deck["loading"]["confining_pressures"]
+        resume = run.meta is not None      # the first stage continues the checkpoint's
         while run.state["current"]["index"] < len(pcs):
-            cur = run.state["current"]
-            k, pc = cur["index"], cur["pc"]
-            if cur["stage"] == "prepare":
-                self.clock.enter("prepare", run.sim.step_count)
-                if k > 0 and not run.case.sim.cell.periodic[1]:     # a new gas after the last loading
-                    step, t = run.sim.step_count, run.sim.time
-                    run.case = biaxial.isotropic.build_gas(run.comm, biaxial.iso_deck(deck))
-                    granular.continue_clock(run.sim, step, t)
-                iso = biaxial.iso_deck(deck)
-                t0 = time.perf_counter()
-                run.case, info = biaxial.isotropic.prepare(run.comm, iso, float(pc), case=run.case, progress=progress)
-                b = info["balance"]
-                cur["prep"] = {"steps": info["steps"], "converged": info["converged"], "pressure": b["pressure"],
-                               "unbalanced": b["unbalanced"], "kinetic": b["kinetic"],
-                               "seconds": time.perf_counter() - t0}
-                progress.say(f"pc = {pc:.4g} Pa: prepared in {info['steps']} steps ({cur['prep']['seconds']:.1f} s), "
-                             f"p = {b['pressure']:.4g} Pa, converged: {info['converged']}")
-                cur["stage"] = "open"
-                if stop is not None and run.sim.step_count >= stop:
-                    raise gout.StepLimit(f"stopped at step {run.sim.step_count} (--steps {stop}), after the preparation")
-            if cur["stage"] == "open":
-                self.clock.enter("open", run.sim.step_count)
-                run.case, geo = biaxial.open_sample(run.comm, run.case, deck)
-                cur["geo"] = geo
-                progress.n_elements = geo["n_grains"]      # the rate counts the grains kept (and copied)
-                progress.start(run.sim.step_count)          # and is measured afresh: a step's cost changed
-                if biaxial.start_loading(run.case, deck, geo, None):
-                    self.record = biaxial.CementRecord(biaxial.intact_cements(run.sim))
-                self.mem, *self.platens = biaxial.install(run.case, deck, pc, geo)
-                cur["settle_start"] = run.sim.step_count
-                cur["stage"] = "settle"
-                progress.say(f"opened: {geo['n_grains']} of {geo['n_before']} grains kept, platens of "
-                             f"{len(geo['bottom'])} and {len(geo['top'])} grains, membranes of "
-                             f"{len(self.mem.chains['left'])} and {len(self.mem.chains['right'])} grains; "
-                             f"friction {deck['material']['friction']}")
-            if cur["stage"] == "settle":
-                self.clock.enter("settle", run.sim.step_count)
-                biaxial.settle(run.case, deck, cur, run.operations, stop)
-                cur["reference"] = biaxial.reference(run.case, self.mem, cur["geo"], deck)
-                biaxial.set_moving(self.platens, deck, cur["geo"])
-                cur["stage"] = "load"
-            if cur["stage"] == "load":
-                self.clock.enter("load", run.sim.step_count)
-                total = biaxial.loading_steps(deck, run.sim.dt)
-                progress.total = cur["reference"]["step"] + total
-                progress.say(f"loading pc = {pc:.4g} Pa to eps_a = {deck['loading']['strain']} at "
-                             f"{deck['loading']['strain_rate']} 1/s ({total} steps)")
+            k = run.state["current"]["index"]
+            stages.run_stages(run.state["current"],
+                              [(name, lambda again, name=name: getattr(self, f"stage_{name}")(run, again))
+                               for name in biaxial.STAGES], resume=resume)
+            resume = False
+            run.state["current"] = fresh_state(k + 1, pcs[k + 1] if k + 1 < len(pcs) else None)
 
-                def on_row(row):
-                    run.series.append(row)
-                    progress.report(row["step"], f"pc {row['pc']:.3g}: eps_a = {row['eps_axial']:.4f}, q/pc = "
-                                                 f"{row['q'] / row['pc']:.4f}, eps_v = {row['eps_vol']:.3e}, "
-                                                 f"sigma_l/pc = {row['sigma_lateral'] / row['pc']:.4f}, "
-                                                 f"sliding {row['sliding_fraction']:.3f}")
-                biaxial.load(run.case, deck, cur, self.mem, self.platens, on_row, run.operations, stop,
-                             on_event=lambda step: self.event(run, step), record=self.record)
-                rows = [r for r in run.series.rows if r["pressure_index"] == k]
-                result = {"pc": pc, "preparation": cur["prep"], "sample": {kk: cur["geo"][kk] for kk in
-                          ("n_grains", "n_before", "y_bottom", "y_top", "mean_radius")},
-                          "platen_grains": [len(cur["geo"]["bottom"]), len(cur["geo"]["top"])],
-                          **biaxial.angles(rows, deck["loading"]["residual_fraction"])}
-                result["windows"] = [dict(w, predictions=shear_band.predictions(result["phi_peak_deg"],
-                                                                                result["psi_max_deg"]))
-                                     for w in cur["windows"]]
-                if self.record is not None:
-                    result["cements"] = self.cement_outputs(run, rows, result)
-                self.clock.close(run.sim.step_count)
-                progress.n_elements = deck["sample"]["n"]
-                progress.start(run.sim.step_count)
-                run.state["results"].append(result)
-                progress.say(f"pc = {pc:.4g} Pa: phi_peak = {result['phi_peak_deg']:.2f} deg at eps_a = "
-                             f"{result['strain_at_peak']:.4f}, phi_residual = {result['phi_residual_deg']:.2f} deg, "
-                             f"psi_max = {result['psi_max_deg']:.2f} deg; from the platens and pc: phi_peak = "
-                             f"{result['phi_peak_boundary_deg']:.2f} deg, phi_residual = "
-                             f"{result['phi_residual_boundary_deg']:.2f} deg")
-                for w in result["windows"]:
-                    progress.say(band_line(w))
-                self.mem = self.platens = self.record = None
-                run.state["current"] = fresh_state(k + 1, pcs[k + 1] if k + 1 < len(pcs) else None)
+    def stage_prepare(self, run, resume):
+        """The frictionless periodic packing at pc (``stages.prepare``): resumed from a checkpoint
+        written in it with its FIRE state and relaxation start; the run's operations (checkpoints,
+        ParaView) run in it and ``--steps`` stops it at that step."""
+        deck, progress, cur = run.deck, run.progress, run.state["current"]
+        k, pc = cur["index"], cur["pc"]
+        self.clock.enter("prepare", run.sim.step_count)
+        if k > 0 and not run.case.sim.cell.periodic[1]:     # a new gas after the last loading
+            step, t = run.sim.step_count, run.sim.time
+            run.case = stages.build_gas(run.comm, biaxial.iso_deck(deck))
+            granular.continue_clock(run.sim, step, t)
+        resume = resume and cur.get("sweep") is not None
+        self.sweep = stages.SweepRun(operations=run.operations, stop=run.args.steps,
+                                     state=dict(cur["sweep"]) if resume else None, exact_stop=True)
+        t0 = time.perf_counter()
+        if resume:
+            progress.say(f"pc = {pc:.4g} Pa: continuing the preparation from step {run.sim.step_count}")
+        run.case, info = stages.prepare(run.comm, biaxial.iso_deck(deck), float(pc), case=run.case,
+                                        progress=progress, run=self.sweep, resume=resume)
+        self.sweep = None
+        cur["sweep"] = None
+        b = info["balance"]
+        cur["prep"] = {"steps": info["steps"], "converged": info["converged"], "pressure": b["pressure"],
+                       "unbalanced": b["unbalanced"], "kinetic": b["kinetic"],
+                       "seconds": self.clock.state(run.sim.step_count)["seconds"]["prepare"]}
+        progress.say(f"pc = {pc:.4g} Pa: prepared in {info['steps']} steps ({time.perf_counter() - t0:.1f} s), "
+                     f"p = {b['pressure']:.4g} Pa, converged: {info['converged']}")
+
+    def stage_open(self, run, resume):
+        """The packing replicated, opened, cut between the platens; friction on; membranes and
+        platens installed (no step: a checkpoint is never inside it)."""
+        deck, progress, cur, stop = run.deck, run.progress, run.state["current"], run.args.steps
+        if stop is not None and run.sim.step_count >= stop:
+            raise gout.StepLimit(f"stopped at step {run.sim.step_count} (--steps {stop}), after the preparation")
+        self.clock.enter("open", run.sim.step_count)
+        run.case, geo = biaxial.open_sample(run.comm, run.case, deck)
+        cur["geo"] = geo
+        progress.n_elements = geo["n_grains"]      # the rate counts the grains kept (and copied)
+        progress.start(run.sim.step_count)          # and is measured afresh: a step's cost changed
+        if biaxial.start_loading(run.case, deck, geo, None):
+            self.record = biaxial.CementRecord(biaxial.intact_cements(run.sim))
+        self.mem, *self.platens = biaxial.install(run.case, deck, cur["pc"], geo)
+        cur["settle_start"] = run.sim.step_count
+        progress.say(f"opened: {geo['n_grains']} of {geo['n_before']} grains kept, platens of "
+                     f"{len(geo['bottom'])} and {len(geo['top'])} grains, membranes of "
+                     f"{len(self.mem.chains['left'])} and {len(self.mem.chains['right'])} grains; "
+                     f"friction {deck['material']['friction']}")
+
+    def stage_settle(self, run, resume):
+        """The settling steps with the platens at rest (to ``settle_start + loading.settle_steps``)."""
+        cur = run.state["current"]
+        self.clock.enter("settle", run.sim.step_count)
+        biaxial.settle(run.case, run.deck, cur, run.operations, run.args.steps)
+        cur["reference"] = biaxial.reference(run.case, self.mem, cur["geo"], run.deck)
+        biaxial.set_moving(self.platens, run.deck, cur["geo"])
+
+    def stage_load(self, run, resume):
+        """The loading to ``loading.strain`` (samples, localisation windows), then the pressure's
+        results."""
+        deck, progress, cur, stop = run.deck, run.progress, run.state["current"], run.args.steps
+        k, pc = cur["index"], cur["pc"]
+        self.clock.enter("load", run.sim.step_count)
+        total = biaxial.loading_steps(deck, run.sim.dt)
+        progress.total = cur["reference"]["step"] + total
+        progress.say(f"loading pc = {pc:.4g} Pa to eps_a = {deck['loading']['strain']} at "
+                     f"{deck['loading']['strain_rate']} 1/s ({total} steps)")
+
+        def on_row(row):
+            run.series.append(row)
+            progress.report(row["step"], f"pc {row['pc']:.3g}: eps_a = {row['eps_axial']:.4f}, q/pc = "
+                                         f"{row['q'] / row['pc']:.4f}, eps_v = {row['eps_vol']:.3e}, "
+                                         f"sigma_l/pc = {row['sigma_lateral'] / row['pc']:.4f}, "
+                                         f"sliding {row['sliding_fraction']:.3f}")
+        biaxial.load(run.case, deck, cur, self.mem, self.platens, on_row, run.operations, stop,
+                     on_event=lambda step: self.event(run, step), record=self.record,
+                     replay=resume and cur.pop("replay", False))
+        rows = [r for r in run.series.rows if r["pressure_index"] == k]
+        result = {"pc": pc, "preparation": cur["prep"], "sample": {kk: cur["geo"][kk] for kk in
+                  ("n_grains", "n_before", "y_bottom", "y_top", "mean_radius")},
+                  "platen_grains": [len(cur["geo"]["bottom"]), len(cur["geo"]["top"])],
+                  **biaxial.angles(rows, deck["loading"]["residual_fraction"])}
+        result["windows"] = [dict(w, predictions=shear_band.predictions(result["phi_peak_deg"],
+                                                                        result["psi_max_deg"]))
+                             for w in cur["windows"]]
+        if self.record is not None:
+            result["cements"] = self.cement_outputs(run, rows, result)
+        self.clock.close(run.sim.step_count)
+        progress.n_elements = deck["sample"]["n"]
+        progress.start(run.sim.step_count)
+        run.state["results"].append(result)
+        progress.say(f"pc = {pc:.4g} Pa: phi_peak = {result['phi_peak_deg']:.2f} deg at eps_a = "
+                     f"{result['strain_at_peak']:.4f}, phi_residual = {result['phi_residual_deg']:.2f} deg, "
+                     f"psi_max = {result['psi_max_deg']:.2f} deg; from the platens and pc: phi_peak = "
+                     f"{result['phi_peak_boundary_deg']:.2f} deg, phi_residual = "
+                     f"{result['phi_residual_boundary_deg']:.2f} deg")
+        for w in result["windows"]:
+            progress.say(band_line(w))
+        self.mem = self.platens = self.record = None
 
     def event(self, run, step):
         """A localisation window's start or end at ``step`` (collective)."""

@@ -49,6 +49,7 @@ from pardem.drivers.granular import GranularDriver
 from pardem.drivers.runner import protocol_main
 from pardem.io import isotropic_plot
 from pardem.protocols import isotropic as iso
+from pardem.protocols import stages
 
 # deck keys a restart may change besides [output] and [checkpoint] (the rest is the physics)
 RESTART_MAY_CHANGE = ("run.progress_seconds", "run.watchdog_seconds", "run.slab_axis", "preparation.max_steps",
@@ -97,7 +98,7 @@ class Isotropic(GranularDriver):
             iso.pressure_checks(deck)
 
     def build(self, run):
-        return iso.build_gas(run.comm, run.deck)
+        return stages.build_gas(run.comm, run.deck)
 
     def protocol_state(self, run):
         return run.state["sweep"].snapshot()
@@ -106,12 +107,12 @@ class Isotropic(GranularDriver):
         deck, sim = run.deck, run.sim
         pressures = sorted(deck["preparation"]["pressures"])
         n = deck["sample"]["n"]
-        kind = "spheres" if iso.dimension(deck) == 3 else "spheres in the plane z = 0 (2D)"
+        kind = "spheres" if stages.dimension(deck) == 3 else "spheres in the plane z = 0 (2D)"
         run.progress.say(f"pardem {pardem.__version__}: isotropic preparation of {n} {kind} on {run.comm.size} "
                          f"rank(s), p0 = {', '.join(f'{p:g}' for p in pressures)} Pa, output {run.out}"
                          + (f", restarted from {run.args.restart} (step {int(run.meta['step'])})" if run.meta else ""))
         self.open_series(run)
-        sweep_run = iso.SweepRun(stop=run.args.steps, state=run.meta["protocol"] if run.meta else None)
+        sweep_run = stages.SweepRun(stop=run.args.steps, state=run.meta["protocol"] if run.meta else None)
         st = sweep_run.state
 
         def on_check(sim, b):
@@ -140,7 +141,7 @@ class Isotropic(GranularDriver):
                           "mu_affine": "Pa", "mu_relaxed": "Pa", "K_static": "Pa", "mu_static": "Pa", "Z": "1",
                           "solid_fraction": "1"},
                 "n_elements": deck["sample"]["n"], "series": ["isotropic.csv", "isotropic.h5"],
-                "dimension": iso.dimension(deck), "stress_convention": iso.stress_convention(run.case.sim)}
+                "dimension": stages.dimension(deck), "stress_convention": iso.stress_convention(run.case.sim)}
 
     def finish(self, run, summary):
         out, rows, details = run.out, summary["rows"], summary["details"]

@@ -38,6 +38,7 @@ from pardem.drivers.runner import StudyDriver, protocol_main
 from pardem.io.records import RecordLog, start_study_folder
 from pardem.parallel import task_farm
 from pardem.protocols import isotropic as iso
+from pardem.protocols import stages
 from pardem.protocols import mixture_study as study
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -84,7 +85,7 @@ def make_plan(args, deck):
                       realisations=option_number("--realisations", opt["realisations"], 1, 1000, integer=True),
                       pressure=option_number("--pressure", opt["pressure"], 1.0, 1e9),
                       mean_radius=option_number("--mean-radius", opt["mean_radius"], 1e-9, 1.0),
-                      n=int(deck["sample"]["n"]), dimension=iso.dimension(deck), seed=int(deck["sample"]["seed"]))
+                      n=int(deck["sample"]["n"]), dimension=stages.dimension(deck), seed=int(deck["sample"]["seed"]))
 
 
 class Mixture(StudyDriver):

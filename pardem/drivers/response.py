@@ -47,8 +47,8 @@ from pardem.drivers.granular import GranularDriver
 from pardem.drivers.runner import protocol_main
 from pardem.io import response_plot
 from pardem.protocols import granular_output as gout
-from pardem.protocols import isotropic as iso
 from pardem.protocols import response
+from pardem.protocols import stages
 
 # deck keys a restart may change besides [output] and [checkpoint] (the rest is the physics)
 RESTART_MAY_CHANGE = ("run.progress_seconds", "run.watchdog_seconds", "run.slab_axis")
@@ -79,7 +79,7 @@ class Response(GranularDriver):
     slab_axes = "xy"
 
     def __init__(self):
-        self.sweep = None        # the preparation's isotropic.SweepRun (its state goes into checkpoints)
+        self.sweep = None        # the preparation's stages.SweepRun (its state goes into checkpoints)
         self.layer = None        # the loaded layer, once the packing is opened
         self.vtk = None
         self.clock = None
@@ -91,7 +91,7 @@ class Response(GranularDriver):
     def build(self, run):
         run.state = {"driver": "response", "stage": "prepare", "sweep": None, "preparation": None, "layer": None,
                      "respond": None, "clock": None, "vtk": [], "result": None}
-        return iso.build_gas(run.comm, response.iso_deck(run.deck))
+        return stages.build_gas(run.comm, response.iso_deck(run.deck))
 
     def restore(self, run):
         case = super().restore(run)
@@ -105,7 +105,7 @@ class Response(GranularDriver):
         st = dict(run.state)
         st["result"] = None     # the summary holds it; the checkpoint need not
         if self.sweep is not None:
-            st["sweep"] = self.sweep.snapshot()
+            st["sweep"] = self.sweep.snapshot(interrupted=run.interrupted is not None)
         st["clock"] = self.clock.state(run.sim.step_count) if self.clock is not None else st["clock"]
         if self.vtk is not None:
             st["vtk"] = list(self.vtk.entries)
@@ -133,36 +133,45 @@ class Response(GranularDriver):
                             f"{run.state['stage']})" if run.meta else ""))
 
     def execute(self, run):
+        """The protocol's stages (``response.RUN_STAGES``), from the checkpoint's on restart."""
+        stages.run_stages(run.state, [(name, lambda again, name=name: getattr(self, f"stage_{name}")(run, again))
+                                      for name in response.RUN_STAGES], resume=run.meta is not None)
+
+    def stage_prepare(self, run, resume):
+        """The frictionless periodic packing (``stages.prepare``, resumable), then replicated and
+        opened into the loaded layer (no step)."""
         comm, deck, progress, stop = run.comm, run.deck, run.progress, run.args.steps
-        if run.state["stage"] == "prepare":
-            self.clock.enter("prepare", run.sim.step_count)
-            resume = run.meta is not None
-            self.sweep = iso.SweepRun(operations=run.operations, stop=stop,
-                                      state=dict(run.state["sweep"]) if resume else None)
-            t0 = time.perf_counter()
-            case, info = iso.prepare(comm, response.iso_deck(deck), deck["preparation"]["pressure"], case=run.case,
-                                     progress=progress, run=self.sweep, resume=resume)
-            self.sweep = None
-            run.state["sweep"] = None
-            case.sim.elements.v[:] = 0.0
-            case.sim.elements.w[:] = 0.0
-            b = info["balance"]
-            run.state["preparation"] = {"converged": info["converged"], "steps": info["steps"],
-                                        "pressure": b["pressure"], "unbalanced": b["unbalanced"],
-                                        "seconds": self.clock.state(run.sim.step_count)["seconds"]["prepare"]}
-            progress.say(f"prepared in {info['steps']} steps ({time.perf_counter() - t0:.1f} s): p = "
-                         f"{b['pressure']:.5g} Pa, converged: {info['converged']}")
-            self.clock.enter("replicate_open", run.sim.step_count)
-            self.layer = response.make_layer(comm, case, deck, progress)
-            run.case = self.layer.case
-            progress.n_elements = int(self.layer.geometry["n_grains"])   # the rate counts the copies
-            progress.start(run.sim.step_count)                           # measured afresh
-            run.state["respond"] = response.new_state()
-            run.state["stage"] = "respond"
-            self.clock.close(run.sim.step_count)
-            progress.say(f"opened: {self.layer.geometry['n_grains']} grains, rows of {self.layer.geometry['n_bottom']} "
-                         f"(bottom) and {self.layer.geometry['n_top']} (top), "
-                         f"{self.clock.seconds['replicate_open']:.1f} s")
+        self.clock.enter("prepare", run.sim.step_count)
+        self.sweep = stages.SweepRun(operations=run.operations, stop=stop,
+                                     state=dict(run.state["sweep"]) if resume else None)
+        t0 = time.perf_counter()
+        case, info = stages.prepare(comm, response.iso_deck(deck), deck["preparation"]["pressure"], case=run.case,
+                                    progress=progress, run=self.sweep, resume=resume)
+        self.sweep = None
+        run.state["sweep"] = None
+        case.sim.elements.v[:] = 0.0
+        case.sim.elements.w[:] = 0.0
+        b = info["balance"]
+        run.state["preparation"] = {"converged": info["converged"], "steps": info["steps"],
+                                    "pressure": b["pressure"], "unbalanced": b["unbalanced"],
+                                    "seconds": self.clock.state(run.sim.step_count)["seconds"]["prepare"]}
+        progress.say(f"prepared in {info['steps']} steps ({time.perf_counter() - t0:.1f} s): p = "
+                     f"{b['pressure']:.5g} Pa, converged: {info['converged']}")
+        self.clock.enter("replicate_open", run.sim.step_count)
+        self.layer = response.make_layer(comm, case, deck, progress)
+        run.case = self.layer.case
+        progress.n_elements = int(self.layer.geometry["n_grains"])   # the rate counts the copies
+        progress.start(run.sim.step_count)                           # measured afresh
+        run.state["respond"] = response.new_state()
+        self.clock.close(run.sim.step_count)
+        progress.say(f"opened: {self.layer.geometry['n_grains']} grains, rows of {self.layer.geometry['n_bottom']} "
+                     f"(bottom) and {self.layer.geometry['n_top']} (top), "
+                     f"{self.clock.seconds['replicate_open']:.1f} s")
+
+    def stage_respond(self, run, resume):
+        """The reference relaxation, the load, the dynamic and static responses (``response.respond``
+        resumes its own sub-stages from ``run.state["respond"]``)."""
+        comm, deck, progress, stop = run.comm, run.deck, run.progress, run.args.steps
         layer = self.layer
         if comm.is_root and deck["output"]["perturbation_vtk"]:
             self.vtk = response_plot.PerturbationVTK(os.path.join(run.out, "response_vtk"),
@@ -184,7 +193,6 @@ class Response(GranularDriver):
         if res is not None:
             res.pop("_per_grain", None)
         run.state["result"] = res
-        run.state["stage"] = "done"
 
     def summary(self, run):
         clock = self.clock if self.clock is not None else gout.StageClock(run.state.get("clock"))

@@ -9,9 +9,9 @@ case with ``pardem.engine.system.build`` (the one builder) from the case's descr
   that axis); along the axes that stay periodic ``build`` wraps them as usual;
 * ``keep(positions [n, 3]) -> bool [n]`` (optional) selects the grains retained, from the
   unwrapped positions ordered by the old gid;
-* gids are **renumbered** ``0 .. m-1`` in the order of the old gids (``build`` numbers its grains
-  so; the order of every pair is kept, so the contact keys stay ordered); ``case.origin_gid`` [m]
-  holds the old gid of each new one (the same on every rank);
+* the grains kept keep their gids (a grain can be followed through the opening, e.g. in one
+  ParaView series; the order of every pair is kept, so the contact keys stay ordered);
+  ``case.origin_gid`` [m] holds them too (the same on every rank);
 * velocities, spins, orientations, radii and masses (inertias) are carried over, and the
   tangential history of every pair that still exists; a pair that touched across the former
   boundary of an opened axis (its two centres, unwrapped, are more than half a period apart along
@@ -97,24 +97,25 @@ def open_axes(comm, case, axes, keep=None):
     ok = kept[pos_of["gid_i"]] & kept[pos_of["gid_j"]]
     for d in opened:
         ok &= np.abs(x[pos_of["gid_j"], d] - x[pos_of["gid_i"], d]) < 0.5 * length[d]
-    new_of_old = np.cumsum(kept) - 1
-    table = {"gid_i": new_of_old[pos_of["gid_i"][ok]].astype(np.int64),
-             "gid_j": new_of_old[pos_of["gid_j"][ok]].astype(np.int64),
+    table = {"gid_i": np.asarray(pairs["gid_i"][ok], dtype=np.int64),
+             "gid_j": np.asarray(pairs["gid_j"][ok], dtype=np.int64),
              "history": np.ascontiguousarray(pairs["history"][ok])}
     periodic = cell.periodic.copy()
     periodic[opened] = False
+    kept_gid = gid[kept]
     new = granular.build_case(comm, regrown(sim, x[kept], grains["radius"][kept], grains["v"][kept],
-                                            grains["w"][kept], lo, length, periodic))
+                                            grains["w"][kept], lo, length, periodic, gids=kept_gid))
     e = new.sim.elements
     # orientations and masses by gid, on owned and ghost rows alike (build made them from radii)
+    row = np.searchsorted(kept_gid, e.gid)
     for k in ("q", "mass", "inertia"):
-        getattr(e, k)[:] = grains[k][kept][e.gid]
+        getattr(e, k)[:] = grains[k][kept][row]
     e.inv_mass[:] = 1.0 / e.mass
     e.inv_inertia[:] = 1.0 / e.inertia
     e.refresh_rotations()
     # the same call build made, now with the carried history (looked up by the new gid pairs)
     new.sim.contacts.rebuild(e, new.sim.bonds, table)
-    new.origin_gid = gid[kept].copy()
+    new.origin_gid = kept_gid.copy()
     new.extras["opened"] = {"axes": ["xyz"[d] for d in opened], "n_before": int(len(gid))}
     return new
 

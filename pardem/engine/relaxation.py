@@ -1,4 +1,5 @@
-"""Relaxation to static equilibrium by FIRE: an operation of a ``Simulation`` (every step).
+"""Relaxation to static equilibrium by FIRE: an operation of a ``Simulation`` (every step); and
+``ServoStiffness``, the operation that keeps a pressure servo's gain cap up to date.
 
 Replaces global viscous damping during sample preparation: viscous damping removes energy from
 every mode at the same rate, so the soft modes of a packing near jamming relax over very many
@@ -16,7 +17,7 @@ frictionless contacts only, so the adaptive step refuses contacts with friction.
 """
 import numpy as np
 
-from pardem.triggers import Periodic
+from pardem.triggers import Periodic, as_trigger
 from pardem.parallel import exact_sum
 from pardem.physics import exact_accumulate, fire
 
@@ -86,3 +87,23 @@ class Fire:
             self.restarts += 1
             if adaptive:
                 sim.set_dt(max(sim.dt * self.f_dec, self.dt_min))
+
+
+class ServoStiffness:
+    """Operation keeping the cell's ``servo_stiffness`` ``S = -dp/de = kd2 / (3 V) + 2 p`` [Pa] (in 2D
+    ``kd2 / (2 V) + p``, with V = L_x L_y t and the in-plane p; the
+    frictionless network's affine stiffness, ``Contacts.stiffness``) up to date, so that the
+    pressure servo caps its gain at ``1 / (2 S dt)`` (``PeriodicCell``), on the steps of ``trigger``
+    and after the last step of every run (``at_end``: the next run starts from an up-to-date S).
+    Collective."""
+    at_end = True
+
+    def __init__(self, trigger=10):
+        self.trigger = as_trigger(trigger)
+
+    def __call__(self, sim):
+        kd2 = sim.contacts.global_affine_stiffness(sim.comm, sim.elements)
+        p = max(sim.cell.pressure(sim.stress), 0.0)
+        # d dimensions (d = 2: the in-plane strain of a 2D cell): S = kd2 / (d V) + (d - 1) p
+        d = sim.cell.dimension
+        sim.cell.servo_stiffness = kd2 / (d * sim.cell.volume) + (d - 1) * p

@@ -5,8 +5,10 @@ lays the copies side by side in a cell ``k_a`` times longer along each periodic 
 the new case with ``pardem.engine.system.build`` (the one builder) from the case's description:
 
 * copy ``c = (c_x, c_y, c_z)`` (row-major, ``c_index = (c_x k_y + c_y) k_z + c_z``) holds the grains
-  at ``x + c L`` (``L`` the old cell edges); gids are renumbered ``c_index N + gid`` (N grains per
-  copy), so ``case.origin_gid`` = ``gid mod N``;
+  at ``x + c L`` (``L`` the old cell edges) with gids ``c_index G + gid``, ``G`` the largest gid
+  plus one (N grains numbered 0 .. N-1: G = N): copy 0 keeps the original gids (its grains can be
+  followed through the replication), the other copies get fresh ones above them; ``case.origin_gid``
+  holds the original gid of each grain (``gid mod G``);
 * velocities, spins, orientations, radii, masses and inertias are copied, and the contact history
   of every pair: a pair ``(i, j)`` whose partner j lies in the image ``-m`` of the old cell
   (``m = round((x_j - x_i) / L)`` per axis, the minimum image: contacts are shorter than half a
@@ -52,9 +54,9 @@ def replicate(comm, case, copies):
     cell = sim.cell
     k = _copies(copies, cell)
     grains, pairs = gather_state(comm, sim)
-    n = len(grains["gid"])
-    if not np.array_equal(grains["gid"], np.arange(n)):
-        raise ValueError("replicate: the case's gids are not 0 .. n - 1")
+    gid = grains["gid"]
+    n = len(gid)
+    G = int(gid[-1]) + 1 if n else 0          # the copies' gids lie above the original's
     L, lo = cell.length.copy(), cell.lo.copy()
     per = cell.periodic
     offsets = np.stack(np.meshgrid(np.arange(k[0]), np.arange(k[1]), np.arange(k[2]), indexing="ij"),
@@ -65,7 +67,8 @@ def replicate(comm, case, copies):
     tile = lambda a: np.concatenate([a] * n_copies)                     # noqa: E731
     # the pairs: the partner's image m (minimum image along the periodic axes)
     gi, gj, hist = pairs["gid_i"], pairs["gid_j"], pairs["history"]
-    sep = x[gj] - x[gi]
+    ri, rj = np.searchsorted(gid, gi), np.searchsorted(gid, gj)      # rows of the pairs' ends
+    sep = x[rj] - x[ri]
     m = np.where(per, np.round(sep / np.where(per, L, 1.0)), 0.0).astype(np.int64)
     if np.any(np.abs(sep - m * L)[:, per] >= 0.5 * L[per]):
         raise ValueError("replicate: a contact spans half a cell (the cell is too small)")
@@ -74,8 +77,8 @@ def replicate(comm, case, copies):
     vec = VECTOR_COLUMNS.get(hist.shape[1], (slice(0, 3),))
     for ci in range(n_copies):
         cj = np.mod(offsets[ci][None, :] - m, k[None, :]) @ stride      # copy index of j's image
-        a = ci * n + gi
-        b = cj * n + gj
+        a = ci * G + gi
+        b = cj * G + gj
         swap = a > b
         h = hist.copy()
         for s in vec:
@@ -86,16 +89,18 @@ def replicate(comm, case, copies):
     table = {"gid_i": np.concatenate(new_i).astype(np.int64), "gid_j": np.concatenate(new_j).astype(np.int64),
              "history": np.ascontiguousarray(np.concatenate(new_h)) if new_h else hist}
     length = L * k
+    gids = np.concatenate([c * G + gid for c in range(n_copies)]).astype(np.int64)
     new = granular.build_case(comm, regrown(sim, xs, tile(grains["radius"]), tile(grains["v"]),
-                                            tile(grains["w"]), lo, length, per))
+                                            tile(grains["w"]), lo, length, per, gids=gids))
     e = new.sim.elements
+    row = np.searchsorted(gids, e.gid)
     for name in ("q", "mass", "inertia"):
-        getattr(e, name)[:] = tile(grains[name])[e.gid]
+        getattr(e, name)[:] = tile(grains[name])[row]
     e.inv_mass[:] = 1.0 / e.mass
     e.inv_inertia[:] = 1.0 / e.inertia
     e.refresh_rotations()
     new.sim.contacts.rebuild(e, new.sim.bonds, table)
-    new.origin_gid = np.mod(np.arange(n * n_copies, dtype=np.int64), n)
+    new.origin_gid = tile(gid).astype(np.int64)
     new.extras["replicated"] = {"copies": k.tolist(), "n_original": int(n)}
     return new
 

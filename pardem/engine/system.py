@@ -55,6 +55,8 @@ class Particles:
     velocities [n, 3] [m/s] and angular_velocities [n, 3] [rad/s] (default at rest).
     allow_overlaps : accept unbonded spheres overlapping by more than half the smaller radius (a
     random gas a servo or a relaxation will pull apart; coincident centres are refused anyway).
+    gids : [n] increasing integers in [0, 2^31), the particles' global ids (default 0 .. n-1): a
+    case rebuilt from another keeps its grains' ids (``regrown``).
     """
     positions: object
     radii: object
@@ -62,6 +64,7 @@ class Particles:
     velocities: object = None
     angular_velocities: object = None
     allow_overlaps: bool = False
+    gids: object = None
 
 
 @dataclass
@@ -302,6 +305,18 @@ def _positive(value, name, unit):
     return float(value)
 
 
+def _gids(gids, n):
+    """``Particles.gids`` checked: [n] strictly increasing integers in [0, 2^31) (int64)."""
+    g = np.asarray(gids)
+    if g.shape != (n,) or (n and not np.issubdtype(g.dtype, np.integer)):
+        raise ValueError(f"Particles.gids must be [{n}] integers (one per particle), got shape {g.shape} "
+                         f"of {g.dtype}")
+    g = g.astype(np.int64)
+    if n and (g[0] < 0 or g[-1] >= 1 << 31 or np.any(np.diff(g) <= 0)):
+        raise ValueError("Particles.gids must be strictly increasing integers in [0, 2^31)")
+    return g
+
+
 def _skin(dec, radii):
     """The neighbour-list and ghost skin [m]: the decomposition's, or 0.2 mean radius."""
     if dec.skin is None:
@@ -374,7 +389,7 @@ def build(comm, system):
     skin = _skin(dec, r)
     slab_axis = _slab_axis(dec.slab_axis, x, r, dim, cell)
 
-    gids = np.arange(n, dtype=np.int64)
+    gids = np.arange(n, dtype=np.int64) if p.gids is None else _gids(p.gids, n)
     reach = 2.0 * float(r.max()) + skin
     L0_max = float(np.linalg.norm(x[pairs[:, 1]] - x[pairs[:, 0]], axis=1).max()) if len(pairs) else 0.0
     ghost_range = GHOST_STRETCH * L0_max + skin
@@ -617,15 +632,17 @@ def describe(sim):
                    decomposition=dec, dimension=2 if plane_of(sim) is not None else base.dimension)
 
 
-def regrown(sim, positions, radii, velocities, angular_velocities, lo, length, periodic):
+def regrown(sim, positions, radii, velocities, angular_velocities, lo, length, periodic, gids=None):
     """The description of a new system like ``sim`` (its contacts, density, time step, damping,
     skin, decomposition, 2D mode) of other particles in another cell (a packing opened along some
     axes or replicated, ``pardem.engine.open_cell``, ``pardem.engine.replicate``): global arrays
-    [n, 3] [m], [n] [m], [n, 3] [m/s], [n, 3] [rad/s]; the cell ``lo``, ``length`` [3] [m],
-    ``periodic`` [3]; it does not deform (rate 0, no servo) and there are no walls."""
+    [n, 3] [m], [n] [m], [n, 3] [m/s], [n, 3] [rad/s], their ``gids`` [n] (increasing; default
+    0 .. n-1); the cell ``lo``, ``length`` [3] [m], ``periodic`` [3]; it does not deform (rate 0,
+    no servo) and there are no walls."""
     model = describe(sim)
     thickness = sim.cell.thickness if model.dimension == 2 else None
-    return replace(model, particles=Particles(positions, radii, sim.density, velocities, angular_velocities),
+    return replace(model, particles=Particles(positions, radii, sim.density, velocities, angular_velocities,
+                                              gids=gids),
                    cell=Cell(np.asarray(lo), np.asarray(length), tuple(bool(p) for p in periodic),
                              thickness=thickness), walls=None)
 

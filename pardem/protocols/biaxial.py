@@ -2,7 +2,7 @@
 
 Protocol, for each confining pressure ``pc`` of ``loading.confining_pressures`` (any number of ranks):
 
-1. **Preparation** (``pardem.protocols.isotropic.prepare`` in 2D): the deck's gas of disks-in-plane
+1. **Preparation** (``pardem.protocols.stages.prepare`` in 2D): the deck's gas of disks-in-plane
    spheres (``sample``: bidisperse by default, R = 0.11 / 0.09 mm, i.e. 0.1 mm +- 10 %) compressed
    frictionless by the pressure servo of the periodic cell to static equilibrium at ``pc``.
 2. **Opening**: the packing copied ``replicate.copies = [k_x, k_y]`` times first
@@ -85,7 +85,8 @@ from pardem.physics import hertz_mindlin as hm
 from pardem.physics import local_strain, shear_band
 from pardem.physics.timestep import rayleigh_time_step
 from pardem.protocols import deck_checks as dc
-from pardem.protocols import isotropic
+from pardem.engine.packing import contact_forces
+from pardem.protocols import isotropic, stages
 from pardem.protocols.granular_output import CHECKPOINT_SECTION, REPLICATE_SECTION, StepLimit, run_section
 from pardem.protocols import output_deck
 
@@ -106,7 +107,7 @@ def biaxial_checks(deck):
     # the sample's height at the densest packing of the smallest grains (the shortest height)
     edge = math.sqrt(s["n"] * math.pi * r_min * r_min / (math.pi / math.sqrt(12.0)) * s["aspect_ratio"]) \
         * deck["replicate"]["copies"][1]
-    dc.check_rate(ld["strain_rate"], edge, math.sqrt(isotropic.young_modulus(mat) / s["density"]),
+    dc.check_rate(ld["strain_rate"], edge, math.sqrt(stages.young_modulus(mat) / s["density"]),
                   "loading.strain_rate", "material.shear_modulus, sample.density")
     steps = len(ld["confining_pressures"]) * (ld["strain"] / (ld["strain_rate"] * dt) + ld["settle_steps"]
                                               + deck["preparation"]["max_steps"])
@@ -205,14 +206,20 @@ def mean_radius(deck):
 
 # -- the stages ------------------------------------------------------------------------------
 
+# the stages of one confining pressure, in order (``pardem.protocols.stages.run_stages``): the
+# frictionless preparation (resumable: ``stages.prepare``), the opening (no step), the settling
+# and the loading (both resume from the pressure's state and a checkpoint's step)
+STAGES = ("prepare", "open", "settle", "load")
+
+
 def prepare(comm, deck, pc, step=0, time=0.0, progress=None):
     """The periodic 2D packing at static equilibrium at ``pc`` (frictionless), its steps counted
     from ``step`` (time ``time``); ``(case, info)``."""
     iso = iso_deck(deck)
-    case = isotropic.build_gas(comm, iso)
+    case = stages.build_gas(comm, iso)
     if step:
         granular.continue_clock(case.sim, step, time)
-    return isotropic.prepare(comm, iso, float(pc), case=case, progress=progress)
+    return stages.prepare(comm, iso, float(pc), case=case, progress=progress)
 
 
 def open_sample(comm, case, deck):
@@ -244,7 +251,7 @@ def open_sample(comm, case, deck):
 def loading_params(deck):
     """The loading's contact parameters (friction on; cemented when ``cement.enabled``)."""
     mat, ld, k = deck["material"], deck["loading"], deck["cement"]
-    p = isotropic.contact_params(mat, mat["friction"], ld["restitution"])
+    p = stages.contact_params(mat, mat["friction"], ld["restitution"])
     if k["enabled"]:
         p.update(cement_normal=k["normal_stiffness"], cement_tangential=k["tangential_stiffness"],
                  cement_fade_time=k["fade_time"])
@@ -338,12 +345,15 @@ def reference(case, mem, geo, deck):
             "speed": platen_speed(deck, geo)}
 
 
-def load(case, deck, st, mem, platens, on_row, operations=(), stop=None, on_event=None, record=None):
+def load(case, deck, st, mem, platens, on_row, operations=(), stop=None, on_event=None, record=None,
+         replay=False):
     """Run the loading of the pressure of ``st`` to ``loading.strain`` (from wherever it is),
     sampling ``output.samples`` rows through ``on_row(row)``; ``on_event(step)`` at each
     localisation window's start or end step (``event_steps``) not yet in ``st["events_done"]``.
     ``stop``: the step of ``--steps`` (``StepLimit``). ``record``: a ``CementRecord`` updated at
-    every sample (cemented samples: when each cement broke)."""
+    every sample (cemented samples: when each cement broke). ``replay``: resumed from a stop
+    signal's checkpoint, whose step's operations (a sample, the writers) have not run yet
+    (``stages.replay``)."""
     sim = case.sim
     start = st["reference"]["step"]
     total = loading_steps(deck, sim.dt)
@@ -357,6 +367,8 @@ def load(case, deck, st, mem, platens, on_row, operations=(), stop=None, on_even
         if on_event is not None and sim.step_count in marks and sim.step_count not in done:
             on_event(sim.step_count)
             done.append(sim.step_count)
+    if replay:
+        stages.replay(sim, [sampler, *operations])
     if sim.step_count == start:
         sampler(sim)
     events()
@@ -381,7 +393,7 @@ def contact_measures(sim, platen_gids):
     included), the sliding fraction of the touching contacts (Mindlin force ``|f_t| >= (1 -
     1e-9) mu f_n``; a contact held by an intact cement does not slide), the coordination ``2
     N_c / N`` (touching contacts) and ``N``."""
-    cf = isotropic.contact_forces(sim, cement=True)
+    cf = contact_forces(sim, cement=True)
     mu = float(sim.contacts.params.friction)
     d, F = cf["branch"], cf["force"]
     inner = ~(np.isin(cf["gid_i"], platen_gids) & np.isin(cf["gid_j"], platen_gids))
@@ -580,7 +592,7 @@ def snapshot(sim):
     [n, 2], ``theta`` [n] (spin angle about z [rad]) and the touching contacts ``pair_i``,
     ``pair_j`` (gids)."""
     e, n, c = sim.elements, sim.elements.n_owned, sim.contacts
-    cf = isotropic.contact_forces(sim)
+    cf = contact_forces(sim)
     theta = 2.0 * np.arctan2(e.q[:n, 3], e.q[:n, 0])
     glued = np.zeros(0, np.int64)
     if c.history.shape[1] == hm.WIDTH_CEMENTED:      # the intact cements' ends (each pair once)
@@ -623,6 +635,6 @@ def window_field(ref, cur, platen_gids, d_mean, fraction=0.1):
             "spin": spin, "inside": inside, "band": band, "cements_broken": broken}
 
 
-__all__ = ["SCHEMA", "COLUMNS", "UNITS", "INT_COLUMNS", "DESCRIPTION", "prepare", "open_sample", "install",
+__all__ = ["SCHEMA", "STAGES", "COLUMNS", "UNITS", "INT_COLUMNS", "DESCRIPTION", "prepare", "open_sample", "install",
            "start_loading", "sample", "Sampler", "angles", "peak_index", "intact_cements", "CementRecord",
            "cement_damage", "band_share", "snapshot", "window_field", "StepLimit"]

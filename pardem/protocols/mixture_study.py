@@ -33,6 +33,7 @@ import numpy as np
 
 from pardem.physics import structure
 from pardem.protocols import isotropic as iso
+from pardem.engine.packing import contact_forces
 
 # the scalar measures of a case, averaged per point over the realisations
 MEASURES = ("pressure", "Z", "Z_no_rattlers", "rattler_fraction", "solid_fraction", "fabric_anisotropy",
@@ -109,7 +110,7 @@ def state_arrays(sim):
         raise ValueError("a mixture case must own all its grains, with gids 0 .. n-1")
     x, radius = np.empty((n, 3)), np.empty(n)
     x[gid], radius[gid] = e.x[:n], e.radius[:n]
-    cf = iso.contact_forces(sim)
+    cf = contact_forces(sim)
     return x, radius, cf["gid_i"].astype(np.int64), cf["gid_j"].astype(np.int64), cf["branch"], cf["fn"]
 
 

@@ -36,7 +36,7 @@ Protocol (any number of ranks; every step is collective):
    unbalanced force is below ``relax.force_tolerance`` of the mean contact force (``"auto"``:
    ``0.01 load.fraction / (2 N)``, so that the residual forces of the N grains move at most 1 % of
    the load, ``residual_share``) and the kinetic
-   energy below ``relax.kinetic_tolerance`` (``pardem.protocols.isotropic.relax``).
+   energy below ``relax.kinetic_tolerance`` (``pardem.protocols.stages.relax``).
 5. **Load.** The grain at the top centre (the highest grain not held by a row, the top row's
    grains included with ``"free"``, whose centre lies within one mean diameter of
    ``x = x_lo + L_x / 2``) gets the extra force ``(0, -F, 0)`` with
@@ -95,8 +95,10 @@ from pardem.parallel.exact_sum import exact_sum
 from pardem.physics import flamant
 from pardem.physics import response as rsp
 from pardem.physics.contact_frame import pair_geometry
+from pardem.physics.timestep import rayleigh_time_step
 from pardem.protocols import deck_checks as dc
 from pardem.protocols import isotropic as iso
+from pardem.protocols import stages
 from pardem.protocols.granular_output import CHECKPOINT_SECTION, REPLICATE_SECTION, StepLimit, run_section
 from pardem.protocols import output_deck
 
@@ -122,7 +124,7 @@ def run_checks(deck):
     """A normal time step; the step caps within ``MAX_STEPS``; the drag below one velocity per step;
     a row thinner than the packing."""
     s, mat = deck["sample"], deck["material"]
-    dt = deck["run"]["dt_fraction"] * iso.rayleigh_time_step(min(s["radii"]), s["density"],
+    dt = deck["run"]["dt_fraction"] * rayleigh_time_step(min(s["radii"]), s["density"],
                                                              mat["shear_modulus"], mat["poisson"])
     dc.check_normal(dt, "the time step", "s", "run.dt_fraction, material.shear_modulus, sample.density")
     dc.check_steps(deck["preparation"]["max_steps"] + 3 * deck["relax"]["max_steps"],
@@ -199,6 +201,10 @@ SCHEMA = Schema({
 SERIES_COLUMNS = ("step", "time", "stage", "unbalanced", "kinetic", "top_force", "bottom_force")
 SERIES_UNITS = ("1", "s", "1", "1", "1", "N", "N")
 SERIES_INT = ("step", "stage")
+# the run's stages (``pardem.protocols.stages.run_stages``): the preparation (resumable: ``stages.prepare``;
+# the layer is replicated and opened at its end, no step) and the response (``respond``, which resumes
+# its own sub-stages ``STAGES`` from its state)
+RUN_STAGES = ("prepare", "respond")
 STAGES = ("reference", "dynamic", "static")
 SERIES_DESCRIPTION = ("pardem response series: one row per check of the relaxations: stage (0 reference, "
                       "1 dynamic, 2 static), mean unbalanced force over the mean contact force, kinetic = "
@@ -327,9 +333,9 @@ def gather_state(sim):
 
 def prepared(comm, deck, progress=None):
     """The frictionless packing at ``preparation.pressure`` in its periodic cell (step 1), and the
-    preparation's info (``isotropic.prepare``)."""
+    preparation's info (``stages.prepare``)."""
     d = iso_deck(deck)
-    case, info = iso.prepare(comm, d, deck["preparation"]["pressure"], progress=progress)
+    case, info = stages.prepare(comm, d, deck["preparation"]["pressure"], progress=progress)
     case.sim.elements.v[:] = 0.0
     case.sim.elements.w[:] = 0.0
     return case, info
@@ -402,7 +408,7 @@ def make_layer(comm, case, deck, progress=None):
     if len(bottom) == 0 or len(top) == 0 or len(free) == 0:
         raise ValueError("boundary.row_thickness leaves a row or the free grains empty")
     mat = deck["material"]
-    set_contact_params(new.sim, iso.contact_params(mat, deck["load"]["friction"], 1.0))
+    set_contact_params(new.sim, stages.contact_params(mat, deck["load"]["friction"], 1.0))
     # the forces of the opened state at the run's step; the fixes added below act on them at once
     granular.continue_clock(sim, step, clock)
     geometry = {"lo": lo.tolist(), "length": L.tolist(), "row_thickness": row,
@@ -548,7 +554,7 @@ def wave_speed(layer):
 
 
 class _Run:
-    """What ``isotropic.relax`` needs of a run: operations, a check callback, the stop step."""
+    """What ``stages.relax`` needs of a run: operations, a check callback, the stop step."""
 
     def __init__(self, operations=(), on_check=None, stop=None):
         self.operations = list(operations)
@@ -571,7 +577,7 @@ def relax_layer(layer, deck, label, progress=None, operations=(), on_check=None,
     tol = {"kinetic_tolerance": r["kinetic_tolerance"],
            "force_tolerance": relax_tolerance(deck, layer.geometry["n_grains"]),
            "pressure_tolerance": 1.0}
-    return iso.relax(sim, tol, r["check_every"], r["max_steps"], progress=progress, label=label,
+    return stages.relax(sim, tol, r["check_every"], r["max_steps"], progress=progress, label=label,
                      start=start, run=_Run(operations, on_check, stop))
 
 
@@ -949,6 +955,6 @@ def _point_record(layer, deck, st, on_record, label):
     return res
 
 
-__all__ = ["SCHEMA", "RigidRow", "Layer", "prepared", "make_layer", "respond", "measure", "gather_state",
+__all__ = ["SCHEMA", "RUN_STAGES", "RigidRow", "Layer", "prepared", "make_layer", "respond", "measure", "gather_state",
            "contact_table", "apply_load", "relax_layer", "wave_speed", "iso_deck", "SERIES_COLUMNS", "new_state",
            "layer_state", "restore_layer", "response_arrays", "restore_response"]
