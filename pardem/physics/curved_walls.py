@@ -40,27 +40,9 @@ overwritten with this rank's force of the elements on the surface [N]; meshes al
 import numpy as np
 from numba import njit
 
-from pardem.physics.walls import LAWS, _forget, wall_contact
+from pardem.physics.walls import LAWS, _forget, _touch
 
 CYLINDER_WIDTH = 10
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _apply(k, wl, delta, n0, n1, n2, v, w, radius, mass, f, t, vel, hist, dt, stiff_n, stiff_t, mu,
-           damp_n, damp_t, out, wall_force, hertz, damped, friction):
-    energy = wall_contact(k, wl, delta, n0, n1, n2, v, w, radius, mass, vel, hist, dt,
-                          stiff_n, stiff_t, mu, damp_n, damp_t, out, hertz, damped, friction)
-    f[k, 0] += out[0]
-    f[k, 1] += out[1]
-    f[k, 2] += out[2]
-    wall_force[wl, 0] -= out[0]
-    wall_force[wl, 1] -= out[1]
-    wall_force[wl, 2] -= out[2]
-    if friction:
-        t[k, 0] += out[3]
-        t[k, 1] += out[4]
-        t[k, 2] += out[5]
-    return energy
 
 
 def _cylinder_loop(hertz, damped, friction):
@@ -103,7 +85,7 @@ def _cylinder_loop(hertz, damped, friction):
                     vel[wl, 0] = velocities[c, 0] + om * rho_c * (a1 * e2 - a2 * e1)
                     vel[wl, 1] = velocities[c, 1] + om * rho_c * (a2 * e0 - a0 * e2)
                     vel[wl, 2] = velocities[c, 2] + om * rho_c * (a0 * e1 - a1 * e0)
-                    energy += _apply(k, wl, delta, n0, n1, n2, v, w, radius, mass, f, t, vel, hist, dt,
+                    energy += _touch(k, wl, delta, n0, n1, n2, x, v, w, radius, mass, f, t, vel, hist, dt,
                                      stiff_n, stiff_t, mu, damp_n, damp_t, out, wall_force, hertz,
                                      damped, friction)
                 elif friction:
@@ -313,7 +295,7 @@ def _mesh_loop(hertz, damped, friction):
                     vel[wl, 0] = velocity[0] + spin[1] * c2 - spin[2] * c1
                     vel[wl, 1] = velocity[1] + spin[2] * c0 - spin[0] * c2
                     vel[wl, 2] = velocity[2] + spin[0] * c1 - spin[1] * c0
-                energy += _apply(k, wl, rk - d, n0, n1, n2, v, w, radius, mass, f, t, vel, hist, dt,
+                energy += _touch(k, wl, rk - d, n0, n1, n2, x, v, w, radius, mass, f, t, vel, hist, dt,
                                  stiff_n, stiff_t, mu, damp_n, damp_t, out, wall_force, hertz, damped,
                                  friction)
                 tri_force[tri0 + best, 0] -= out[0]
