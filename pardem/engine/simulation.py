@@ -124,7 +124,7 @@ class Simulation:
         self._clock = (0, 0.0)          # (step, time) from which time counts at the current dt
         self.bond_energy = 0.0
         self.plate_energy = 0.0
-        self.max_speed2 = float(max_speed) ** 2
+        self.max_speed2 = float(max_speed) * float(max_speed)   # inf, not OverflowError, past 1e154
         self.step_displacement = float(max_step_displacement)
         self._speed_limit2 = self.max_speed2    # with the displacement bound once ``run`` knows r_min
         self._r_min = None              # the smallest radius [m] over ranks (``run``)
@@ -312,7 +312,8 @@ class Simulation:
         stiff = math.isfinite(getattr(self, "dt_critical", 0.0))
         if self._r_min is not None and self.dt > 0.0 and stiff:
             loading = LOADING_SPEEDS * abs(float(getattr(self.plates, "speed", 0.0) or 0.0))
-            limit2 = min(limit2, max(self.step_displacement * self._r_min / self.dt, loading) ** 2)
+            bound = max(self.step_displacement * self._r_min / self.dt, loading)
+            limit2 = min(limit2, bound * bound)
         self._speed_limit2 = limit2
 
     @property

@@ -477,6 +477,8 @@ def build(comm, system):
         dt = float(integ.dt)
     sim.dt = dt
     sim.dt_critical = float(dt_c)
+    if cell is not None:
+        _check_cell_rates(cell, dt)
     if system.walls is not None:
         check_servos(sim, sim.plates)
     sim.density = density
@@ -576,6 +578,22 @@ def _check_integration(integ):
         raise ValueError(f"Integration.check_every must be an integer >= 1 [steps], got {k!r}")
     if not isinstance(integ.orientation, (bool, np.bool_)):
         raise ValueError(f"Integration.orientation must be True or False, got {integ.orientation!r}")
+
+
+# the largest strain of the cell in one step: more is no deformation a step resolves (the grains
+# would jump by a sizeable fraction of the cell, the neighbour grid would overflow)
+MAX_CELL_STRAIN_PER_STEP = 1e-3
+
+
+def _check_cell_rates(cell, dt):
+    """ValueError when the cell's strain rate or shear rate [1/s] strains it by more than
+    ``MAX_CELL_STRAIN_PER_STEP`` in one step ``dt`` [s]."""
+    for name, rates in (("Cell.rate", cell.rate), ("Cell.shear_rate", cell.shear_rate)):
+        worst = float(np.max(np.abs(rates)))
+        if not worst * dt <= MAX_CELL_STRAIN_PER_STEP:
+            raise ValueError(f"{name} = {np.asarray(rates).tolist()} [1/s]: expected |rate| <= "
+                             f"{MAX_CELL_STRAIN_PER_STEP / dt:.6g} 1/s (a strain of at most "
+                             f"{MAX_CELL_STRAIN_PER_STEP:g} per step of dt = {dt:.6g} s)")
 
 
 def _slab_axis(axis, x, r, dim, cell=None):
