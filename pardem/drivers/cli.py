@@ -32,7 +32,7 @@ from pardem.config import DeckError, choice, describe
 from pardem.io.deck_file import load_deck
 from pardem.engine import stop
 from pardem.errors import InstabilityError, Interrupted, OutputError
-from pardem.io import checkpoint_writer, run_folder
+from pardem.io import checkpoint_writer, progress, run_folder
 from pardem.io.records import header_difference, read_records, read_study_header
 from pardem.parallel import layout, watchdog
 from pardem.parallel.communicator import exit_now, report_and_abort
@@ -187,9 +187,7 @@ def checkpoints_line(args):
 def quiet_abort(comm, code):
     """End every rank with ``code`` (``MPI_Abort``) after this rank's line, without MPICH's own
     "Abort(code) on node ..." line: stderr is pointed at /dev/null once the line is out."""
-    sys.stderr.flush()
-    null = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(null, 2)
+    progress.silence_stderr()
     comm.abort(code)     # waits ABORT_GRACE_SECONDS: the launcher forwards the line meanwhile
 
 

@@ -309,7 +309,8 @@ class Simulation:
         limit2 = self.max_speed2
         # without anything stiff (no bond, wall or contact: an infinite critical step) no
         # interaction has a motion per step to resolve: a free flight is never a runaway
-        stiff = math.isfinite(getattr(self, "dt_critical", 0.0))
+        dt_c = getattr(self, "dt_critical", None)     # None: not known here (built by a protocol)
+        stiff = dt_c is None or math.isfinite(dt_c)
         if self._r_min is not None and self.dt > 0.0 and stiff:
             loading = LOADING_SPEEDS * abs(float(getattr(self.plates, "speed", 0.0) or 0.0))
             bound = max(self.step_displacement * self._r_min / self.dt, loading)

@@ -13,6 +13,7 @@ It is an operation (``trigger = Periodic(1)``: after every step; ``__call__(sim)
 plain reporter (``report``) for callers that sample themselves; ``say`` prints free text (phase
 changes). Nothing here is collective: it reads only what rank 0 holds.
 """
+import os
 import sys
 import time
 
@@ -117,3 +118,12 @@ def _duration(seconds):
     if s < 3600.0:
         return f"{int(s // 60)} min {int(s % 60):02d} s"
     return f"{int(s // 3600)} h {int(s % 3600 // 60):02d} min"
+
+
+def silence_stderr():
+    """Point this process's stderr (file descriptor 2) at /dev/null, after flushing it: the line a
+    driver printed is out, and what a launcher would add after it (MPICH's "Abort(code) on node")
+    is not."""
+    sys.stderr.flush()
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 2)
