@@ -1,5 +1,6 @@
 """The direct shear box (``pardem.protocols.direct_shear``, driver ``direct_shear``) on its short deck
-(``drivers/direct_shear_short.toml``: 300 spheres, mu_p = 0.5, sigma_n = 10 kPa): the lid's servo,
+(``drivers/direct_shear_short.toml``: 1000 spheres, mu_p = 0.5, sigma_n = 10 kPa; the restart on
+300 spheres and a shorter shear): the lid's servo,
 the dilatancy of a dense sample, the friction it measures against frictionless grains, a restart
 equal to the uninterrupted run, one clear error for a bad deck."""
 import glob
@@ -58,8 +59,8 @@ def test_servo_holds_the_normal_stress(sheared):
     assert abs(sig[0] / SIGMA - 1.0) < 0.01, sig[0]
     # during the shear the lid rises with the dilation at v_lid; the servo's law v = gain (F_t - F)
     # needs the force error F_t - F = -v_lid / gain to do so: sigma / sigma_n - 1 = v_lid / (gain F_t)
-    # (a lag of about 5 % at the deck's gain). The measured stress follows it to 2 % on average
-    # (the force chains under the lid rearrange between samples); it stays within 20 % throughout
+    # (about 1 % at the deck's gain). The measured stress follows it to 2 % on average (the force
+    # chains under the lid rearrange between samples); it stays within 10 % throughout
     deck = load_deck(ds.SCHEMA, SHORT, [])
     L = deck["sample"]["box"] * deck["sample"]["radius"]
     target = SIGMA * L * L
@@ -69,7 +70,7 @@ def test_servo_holds_the_normal_stress(sheared):
     mid = 0.5 * (sig[1:] + sig[:-1]) / SIGMA - 1.0
     on = np.asarray(s["displacement"])[1:] >= 0.02 * L
     assert np.abs(mid[on] - lag[on]).mean() < 0.02, (np.abs(mid[on] - lag[on]).mean(), np.abs(mid[on]).mean())
-    assert np.abs(mid[on]).max() < 0.2
+    assert np.abs(mid[on]).max() < 0.1
 
 
 def test_dense_sample_dilates_and_softens(sheared):
@@ -82,35 +83,40 @@ def test_dense_sample_dilates_and_softens(sheared):
     assert sm["peak_friction"] > sm["residual_friction"]
 
 
-def test_grain_friction_raises_the_measured_friction(sheared, tmp_path):
-    # frictionless spheres shear at a macroscopic friction ~0.1 (Peyneau & Roux, Phys. Rev. E 78,
-    # 011307 (2008)); spheres of mu_p = 0.5 at 0.35-0.45 (GDR MiDi, Eur. Phys. J. E 14, 341 (2004);
-    # da Cruz et al., Phys. Rev. E 72, 021309 (2005)): a difference of at least 0.2 expected. The
-    # box's absolute values are higher than these (see the report): the ploughing of the half boxes'
-    # edges adds to both, so only the difference is asserted.
+def test_residual_friction_of_frictional_spheres(sheared, tmp_path):
+    # spheres of mu_p = 0.5 shear steadily at a macroscopic friction of 0.35-0.45 (GDR MiDi, Eur.
+    # Phys. J. E 14, 341 (2004); da Cruz et al., Phys. Rev. E 72, 021309 (2005)), frictionless
+    # spheres at ~0.1 (Peyneau & Roux, Phys. Rev. E 78, 011307 (2008)): a difference of 0.25-0.35.
+    # This small box (10 grains across, walls of zero thickness meeting at the shear plane) adds
+    # its edges' resistance to both (about 0.1-0.2, see the report), so the assertions are the
+    # lower bound of the literature's range and the difference between the two grain frictions
     out = tmp_path / "mu0"
     assert run(out, "--set", "contacts.friction=0.0") == 0
     frictionless = summary(out)["residual_friction"]
     frictional = summary(sheared)["residual_friction"]
+    assert frictional > 0.3, frictional
     assert frictional - frictionless > 0.2, (frictional, frictionless)
     assert frictionless > 0.0
 
 
-def test_restart_equals_uninterrupted_run(sheared, tmp_path):
-    first, second = tmp_path / "a", tmp_path / "b"
-    stop = 12000 + 700          # inside the shear (preparation.steps = 12000)
-    assert run(first, "--steps", str(stop)) == 0
+def test_restart_equals_uninterrupted_run(tmp_path):
+    small = ("--set", "sample.n=300", "--set", "sample.box=12.0", "--set", "preparation.steps=8000",
+             "--set", "shear.displacement=0.05")
+    first, second, whole = tmp_path / "a", tmp_path / "b", tmp_path / "whole"
+    assert run(whole, *small) == 0
+    stop = 8000 + 700          # inside the shear (preparation.steps = 8000)
+    assert run(first, *small, "--steps", str(stop)) == 0
     state, step = final_state(first)
     assert step == stop
     ck = glob.glob(os.path.join(str(first), "checkpoints", f"checkpoint-*{stop}.h5"))
     assert len(ck) == 1
     assert driver.main(["--restart", ck[0], "--out", str(second), "--quiet"]) == 0
     a, sa = final_state(second)
-    b, sb = final_state(sheared)
+    b, sb = final_state(whole)
     assert sa == sb
     for k in a:
         assert np.array_equal(a[k], b[k]), k
-    ra, rb = rows(second), rows(sheared)
+    ra, rb = rows(second), rows(whole)
     for c in ("step", "shear_force", "normal_force", "dilation"):
         assert np.array_equal(np.asarray(ra[c]), np.asarray(rb[c])), c
 

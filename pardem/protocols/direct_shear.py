@@ -5,7 +5,9 @@ y = 0, y = W are static planes; the lid is a plane under a force servo (``pardem
 holding the normal stress ``sigma_n``; the walls across the shear direction x are triangle meshes
 (``pardem.engine.walls.Mesh``, each a rectangle of two triangles): the lower half box's two
 (x = 0 and x = L, z in [0, z_split]) are static, the upper half box's two (z above z_split) move
-along +x at ``shear.velocity`` from the start of the shear (a ``wall_motion.Table``: at rest
+along +x at ``shear.velocity`` from the start of the shear; two horizontal ledges at z_split, the
+thick walls' faces of a real box (beyond x = L, static; before x = 0, moving with the upper box),
+keep the grains from pouring out of the box through the openings the shear uncovers (a ``wall_motion.Table``: at rest
 during the preparation). Every wall is frictionless (one law per wall set), so the x force the
 grains exert on the upper half box is the shear resistance of the plane z = z_split alone, and the
 lid's force is the normal force on that plane (no gravity).
@@ -46,7 +48,7 @@ from pardem.triggers import At, Or
 
 AXES = "xyz"
 TOP = 1                  # the lid's plane row (planes: floor, lid, y = 0, y = W)
-LOWER, UPPER = (4, 5), (6, 7)    # wall rows of the lower and upper half boxes' meshes
+LOWER, UPPER = (4, 5, 6), (7, 8, 9)    # wall rows of the lower and upper half boxes' meshes
 
 
 SCHEMA = Schema({
@@ -122,6 +124,12 @@ def rectangle(x, y0, y1, z0, z1):
     return np.array([[a, b, c], [a, c, e]], dtype=np.float64)
 
 
+def ledge(z, x0, x1, y0, y1):
+    """The horizontal rectangle z = const, x in [x0, x1], y in [y0, y1] as two triangles [2, 3, 3] [m]."""
+    a, b, c, e = (x0, y0, z), (x1, y0, z), (x1, y1, z), (x0, y1, z)
+    return np.array([[a, b, c], [a, c, e]], dtype=np.float64)
+
+
 def shear_start(deck):
     """The time [s] the shear starts: the end of the preparation."""
     return deck["preparation"]["steps"] * time_step(deck)
@@ -151,10 +159,16 @@ def build(comm, deck):
     # at rest until the shear starts, then at the shear velocity (held after t0 + 2 T: past the end)
     move = wall_motion.Table([0.0, t0, t0 + 2.0 * T], [[0, 0, 0], [0, 0, 0], [2.0 * T * sh["velocity"], 0, 0]])
     m = 2.0 * R       # the meshes reach past the side planes
+    D = sh["displacement"] * L + m
+    # the walls of a real box are thick: the lower box's wall top (a ledge at z_split beyond x = L)
+    # carries the grains the upper box moves past it, the upper box's wall bottom (a ledge before
+    # x = 0, moving with it) covers the lower box's grains it uncovers; without them grains pour out
     meshes = [Mesh(rectangle(0.0, -m, L + m, -m, zs), name="lower x=0"),
               Mesh(rectangle(L, -m, L + m, -m, zs), name="lower x=L"),
+              Mesh(ledge(zs, L, L + D, -m, L + m), name="lower ledge"),
               Mesh(rectangle(0.0, -m, L + m, zs, ztop + m), motion=move.to_dict(), name="upper x=0"),
-              Mesh(rectangle(L, -m, L + m, zs, ztop + m), motion=move.to_dict(), name="upper x=L")]
+              Mesh(rectangle(L, -m, L + m, zs, ztop + m), motion=move.to_dict(), name="upper x=L"),
+              Mesh(ledge(zs, -D, 0.0, -m, L + m), motion=move.to_dict(), name="upper ledge")]
     servo = Servo(servo_gain(deck), stress=sh["normal_stress"], area=L * L, max_speed=sh["max_speed"])
     walls = WallModel(normals=[[0, 0, 1], [0, 0, -1], [0, 1, 0], [0, -1, 0]],
                       points=[[0, 0, 0], [0, 0, ztop], [0, 0, 0], [0, L, 0]], law=law,
@@ -198,8 +212,8 @@ def sample(case):
     """One row of ``COLUMNS`` (collective: the kinetic energy)."""
     sim, ex = case.sim, case.extras
     w = sim.plates
-    d = float(w.meshes[2].motion.displacement(sim.time - w.time0)[0])
-    fs = -float(w.force[UPPER[0], 0] + w.force[UPPER[1], 0])
+    d = float(w.meshes[3].motion.displacement(sim.time - w.time0)[0])
+    fs = -float(sum(w.force[k, 0] for k in UPPER))
     fn = float(w.normal_force[TOP])
     area = ex["area"]
     return {"step": sim.step_count, "time": sim.time, "displacement": d, "shear_force": fs,
