@@ -5,6 +5,9 @@ the dilatancy of a dense sample, the friction it measures against frictionless g
 equal to the uninterrupted run, one clear error for a bad deck."""
 import glob
 import os
+import shutil
+import subprocess
+import sys
 
 import h5py
 import numpy as np
@@ -17,6 +20,7 @@ from pardem.protocols import direct_shear as ds
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHORT = os.path.join(ROOT, "drivers", "direct_shear_short.toml")
+MPIEXEC = shutil.which("mpiexec.mpich") or shutil.which("mpiexec")
 SIGMA = 1e4          # shear.normal_stress of the deck [Pa]
 
 
@@ -99,11 +103,43 @@ def test_residual_friction_of_frictional_spheres(sheared, tmp_path):
     assert frictionless > 0.0
 
 
-def test_restart_equals_uninterrupted_run(tmp_path):
-    small = ("--set", "sample.n=300", "--set", "sample.box=12.0", "--set", "preparation.steps=8000",
-             "--set", "shear.displacement=0.05")
-    first, second, whole = tmp_path / "a", tmp_path / "b", tmp_path / "whole"
-    assert run(whole, *small) == 0
+SMALL = ("--set", "sample.n=300", "--set", "sample.box=12.0", "--set", "preparation.steps=8000",
+         "--set", "shear.displacement=0.05")
+
+
+@pytest.fixture(scope="module")
+def whole(tmp_path_factory):
+    """The small case (300 spheres, a short shear) run through on 1 rank."""
+    out = tmp_path_factory.mktemp("ds") / "whole"
+    assert run(out, *SMALL) == 0
+    return out
+
+
+@pytest.mark.skipif(MPIEXEC is None, reason="needs mpiexec")
+def test_two_ranks_same_state(whole, tmp_path):
+    # each grain's wall and contact loads depend on that grain and its neighbours alone, the servo
+    # reads an exact sum: the trajectory is the same bits on 2 ranks (engine/walls.py); the series'
+    # wall forces are floating-point sums over rows then ranks, equal to about n eps sum_k |F_k|
+    # (n ~ 300 rows, eps = 2.2e-16: 7e-14 of the sum of magnitudes, which exceeds the net force by
+    # at most a factor ~1e3 here): rtol 1e-9
+    out = tmp_path / "two"
+    p = subprocess.run([MPIEXEC, "-n", "2", sys.executable, "-m", "pardem.drivers.direct_shear", "--config", SHORT,
+                        *SMALL, "--out", str(out), "--quiet"], capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert p.returncode == 0, p.stderr[-3000:]
+    a, sa = final_state(out)
+    b, sb = final_state(whole)
+    assert sa == sb
+    for k in a:
+        assert np.array_equal(a[k], b[k]), k
+    ra, rb = rows(out), rows(whole)
+    for c in ("shear_force", "normal_force"):
+        x, y = np.asarray(ra[c]), np.asarray(rb[c])
+        assert np.allclose(x, y, rtol=1e-9, atol=1e-12 * np.abs(y).max()), c
+
+
+def test_restart_equals_uninterrupted_run(whole, tmp_path):
+    small = SMALL
+    first, second = tmp_path / "a", tmp_path / "b"
     stop = 8000 + 700          # inside the shear (preparation.steps = 8000)
     assert run(first, *small, "--steps", str(stop)) == 0
     state, step = final_state(first)
