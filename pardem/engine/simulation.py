@@ -352,7 +352,8 @@ class Simulation:
             raise InstabilityError(
                 f"at step {self.step_count} (t = {self.time:.6g} s): NaN or speed above the limit "
                 f"({self.speed_limit:.4g} m/s: {self.step_displacement:g} of the smallest radius per step or "
-                f"{LOADING_SPEEDS:g} times the plates' speed, at most max_speed; or a non-finite position, "
+                f"{LOADING_SPEEDS:g} times the plates' speed, at most max_speed: Integration.max_step_displacement "
+                f"and max_speed set them; or a non-finite position, "
                 f"velocity, force or state)")
         if signum:
             raise Interrupted(signum, self.step_count)
