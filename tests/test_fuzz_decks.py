@@ -25,6 +25,7 @@ from pardem.protocols import anisotropy_study as study
 from pardem.protocols import biaxial
 from pardem.protocols import calibration as calib
 from pardem.protocols import deck_checks
+from pardem.protocols import direct_shear
 from pardem.protocols import isotropic as iso
 from pardem.protocols import response
 from pardem.protocols import triaxial
@@ -601,7 +602,7 @@ def test_shipped_decks_of_every_driver_load():
     """Every deck in drivers/ passes the new ranges (they are the documented inputs)."""
     schemas = {"compress": COMPRESS_SCHEMA, "anisotropy": COMPRESS_SCHEMA, "isotropic": iso.SCHEMA,
                "mixture": iso.SCHEMA, "triaxial": triaxial.SCHEMA, "calibrate": calib.CALIBRATE_SCHEMA,
-               "response": response.SCHEMA, "biaxial": biaxial.SCHEMA}
+               "response": response.SCHEMA, "biaxial": biaxial.SCHEMA, "direct": direct_shear.SCHEMA}
     names = sorted(n for n in os.listdir(DRIVERS_DIR) if n.endswith(".toml"))
     assert len(names) >= 15
     for name in names:
