@@ -18,6 +18,7 @@ from hypothesis import strategies as st
 import pardem
 from pardem import restart
 from pardem.engine.system import describe, set_contact_params
+from pardem.errors import InstabilityError
 
 R, RHO = 1e-3, 2500.0
 HERTZ = {"young": 7e10, "poisson": 0.25, "friction": 0.3}
@@ -131,6 +132,29 @@ def test_bad_descriptions_are_refused_naming_the_field(comm, change, message):
     change(system)
     with pytest.raises(ValueError, match=message):
         pardem.build(comm, system)
+
+
+@pytest.mark.parametrize("ratio", [1e-300, 1e-80, 1e80, 1e300])
+def test_a_bond_section_outside_the_float_range_is_refused(comm, ratio):
+    """r**4 underflows to 0 (or overflows) near r / R ~ 1e-77 (1e77): a bond of zero or infinite
+    stiffness would turn the first step's damping into NaN, so the builder refuses it."""
+    x = np.array([[0.0, 0.0, 0.0], [2 * R, 0.0, 0.0]])
+    system = pardem.System(pardem.Particles(x, R, RHO),
+                           bonds=pardem.BondModel(pardem.BeamMaterial(1e6, ratio, 0.0, 1.0), [[0, 1]]))
+    with pytest.raises(ValueError, match="BeamMaterial.young, radius_ratio: a bond's .* stiffness is"):
+        pardem.build(comm, system)
+
+
+def test_a_row_blown_to_nan_stops_the_run_as_unstable(comm):
+    """A non-finite position met by the contact list's rebuild is an instability (exit code and
+    last good checkpoint), not a ValueError from the binning."""
+    sim = pardem.build(comm, granular(comm, check_every=1000))
+    sim.run(2)
+    sim.elements.x[5] = np.nan
+    sim.elements.v[:] = 0.0
+    with pytest.raises(InstabilityError, match="NaN or speed above the limit"):
+        sim.contacts.vl.builds = 0      # the next step rebuilds
+        sim.run(1)
 
 
 def test_a_system_without_anything_stiff_needs_a_time_step(comm):

@@ -109,13 +109,20 @@ def make_bonds(elements, pairs, material, frame, gids=None):
     young = anisotropy.evaluate(material.law, n, frame, material.young)
     r_adim = anisotropy.evaluate(material.law, n, frame, material.radius_ratio)
     r = r_adim * 0.5 * (e.radius[i] + e.radius[j])
-    S = np.pi * r**2
-    I = np.pi * r**4 / 4.0
-    I0 = np.pi * r**4 / 2.0
-    G = young / (2.0 * (1.0 + material.poisson))
-    ka = young * S / L0
-    kb = young * I
-    kt = G * I0 / L0
+    with np.errstate(over="ignore", under="ignore"):    # refused below, in one line
+        S = np.pi * r**2
+        I = np.pi * r**4 / 4.0
+        I0 = np.pi * r**4 / 2.0
+        G = young / (2.0 * (1.0 + material.poisson))
+        ka = young * S / L0
+        kb = young * I
+        kt = G * I0 / L0
+    for name, k in (("axial E S / L0", ka), ("bending E I", kb), ("torsion G I0 / L0", kt)):
+        if not np.all(np.isfinite(k) & (k > 0.0)):
+            # r**4 leaves the float range near r/R ~ 1e-75 or 1e75: no step could use that bond
+            raise ValueError(f"BeamMaterial.young, radius_ratio: a bond's {name} stiffness is "
+                             f"{float(k[~(np.isfinite(k) & (k > 0.0))][0]):g}, not a finite positive number; "
+                             "keep young * (bond radius)**4 within the float range")
     zeta = material.damping
     m_red = e.mass[i] * e.mass[j] / (e.mass[i] + e.mass[j])
     i_red = e.inertia[i] * e.inertia[j] / (e.inertia[i] + e.inertia[j])

@@ -209,6 +209,12 @@ class Simulation:
 
     def rebuild_contacts(self):
         """Single process: wrap into the periodic cell and rebuild the contact list."""
+        e = self.elements
+        if first_nonfinite([e.x[:e.n_owned]]) >= 0:
+            # a blown-up row cannot be binned: the run stops as unstable (the slab layer's update
+            # reports the same through ``unstable``)
+            self._unstable = True
+            self.check_stability(force=True)
         if self.cell is not None:
             self.cell.wrap(self.elements)
         self.contacts.sort(self.elements, self.bonds)     # rows in spatial order (when sort_rows)
