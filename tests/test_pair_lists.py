@@ -19,7 +19,7 @@ from pardem.engine import contacts as contacts_mod
 from pardem.engine.contacts import lookup, pair_keys
 from pardem.engine.system import Cell, ContactModel, Decomposition, Integration, Particles, System, build
 from pardem.parallel.communicator import Communicator
-from pardem.physics.pair_lists import carry_history, order_by_key, shift_metres_into
+from pardem.physics.pair_lists import carry_history, order_by_key, scattered, shift_metres_into, spatial_order
 
 
 def random_pairs(rng, n_rows, n_pairs, gid):
@@ -145,6 +145,7 @@ def test_spatial_sort_keeps_the_bits(monkeypatch):
     added in key order (``Contacts.sort_rows``): the same bits by gid as the list order, also for
     a packing whose rows start in a random order; the rows were indeed reordered."""
     monkeypatch.setattr(contacts_mod, "SORT_MIN_ROWS", 0)    # sort these 216 rows too
+    monkeypatch.setattr(contacts_mod, "scattered", lambda *args: True)   # whatever their order
     comm = Communicator()
     runs = []
     for sort in (False, True):
@@ -158,3 +159,48 @@ def test_spatial_sort_keeps_the_bits(monkeypatch):
     assert not np.array_equal(rows_a, rows_b)
     for k in a:
         assert a[k] == b[k], k
+
+
+def lattice(n, spacing=1.0):
+    g = np.arange(n) * spacing
+    return np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+@pytest.mark.parametrize("n", [10, 24])
+def test_rows_built_in_order_are_not_scattered_and_shuffled_rows_are(n):
+    """``pair_lists.scattered``: a lattice stored axis by axis is as local as the Morton order (the
+    mean storage gap of neighbours, 1, n and n^2 rows, is about n^2 / 3, below twice the Morton
+    order's); the same lattice shuffled has a gap about N / 3, many times the Morton order's.
+    The pairs are the 6 nearest neighbours, found by brute force over the lattice's index grid."""
+    x = lattice(n)
+    idx = np.arange(n ** 3).reshape(n, n, n)
+    pairs = np.concatenate([np.stack([np.roll(idx, -1, a)[tuple(slice(0, n - 1) if b == a else slice(None)
+                                                               for b in range(3))].ravel(),
+                                      idx[tuple(slice(0, n - 1) if b == a else slice(None) for b in range(3))].ravel()],
+                                     axis=1) for a in range(3)])
+    lo, hi = x.min(axis=0) - 0.5, x.max(axis=0) + 0.5
+    assert not scattered(pairs[:, 0], pairs[:, 1], x, n ** 3, lo, hi, 1.0)
+    perm = np.random.default_rng(3).permutation(n ** 3)      # row perm[k] goes to position k
+    where = np.empty_like(perm)
+    where[perm] = np.arange(n ** 3)
+    assert scattered(where[pairs[:, 0]], where[pairs[:, 1]], x[perm], n ** 3, lo, hi, 1.0)
+
+
+def test_a_lattice_in_order_is_not_sorted_and_a_shuffled_packing_is(monkeypatch):
+    """The rows are sorted only where it pays: the time loop leaves a packing stored in a local
+    order as it is, and sorts one stored at random (the same bits either way: tests above)."""
+    monkeypatch.setattr(contacts_mod, "SORT_MIN_ROWS", 0)
+    comm = Communicator()
+    orders = []
+    for perm in (None, np.random.default_rng(8).permutation(216)):
+        sim = build(comm, sheared_packing())
+        if perm is None:
+            e, c = sim.elements, sim.contacts      # a local order: Morton's
+            permute_rows(sim, spatial_order(e.x, e.n_total, *c.grid_box(e.x), c.cut))
+        else:
+            permute_rows(sim, perm)
+        before = sim.elements.gid.copy()
+        sim.run(150)
+        orders.append((sim.contacts.scattered, np.array_equal(before, sim.elements.gid)))
+    assert orders[0] == (False, True)
+    assert orders[1] == (True, False)

@@ -207,3 +207,20 @@ def compute_order(i, j, n_rows):
     inc = np.empty(2 * n, dtype=np.int64)
     _compute_order(np.ascontiguousarray(i), np.ascontiguousarray(j), int(n_rows), order, inc_start, inc)
     return order, inc_start, inc
+
+
+def scattered(i, j, x, n, lo, hi, h, factor=2.0):
+    """Whether the rows ``[0, n)`` are stored scattered: the pairs ``(i, j)`` (int [n_pairs]) among
+    them lie, on average, more than ``factor`` times farther apart in storage than they would in
+    the Morton order of ``spatial_order(x, n, lo, hi, h)``. A lattice built axis by axis is about as
+    local as the Morton order (a mean gap of 0.7 times it); rows inserted at random are tens of times
+    worse (28 times for 64,000 grains)."""
+    i = np.asarray(i, dtype=np.int64)
+    j = np.asarray(j, dtype=np.int64)
+    inner = (i < n) & (j < n)
+    if n < 2 or not np.any(inner):
+        return False
+    i, j = i[inner], j[inner]
+    rank = np.empty(n, dtype=np.int64)
+    rank[spatial_order(x, n, lo, hi, h)] = np.arange(n, dtype=np.int64)
+    return float(np.abs(i - j).mean()) > factor * float(np.abs(rank[i] - rank[j]).mean())
