@@ -388,3 +388,72 @@ def test_decomposition_counts_model_matches_the_bookkeeping(tmp_path):
     for c in checks:
         assert c["exact_mean_ghosts"] > 0 and c["formula_equals_bookkeeping"] is True
         assert abs(c["model_ghosts"] / c["exact_mean_ghosts"] - 1.0) < 0.10, c
+
+
+# -- lattice planes split by global id ---------------------------------------------------------------
+
+def owner_by_keys(g, x, gid):
+    """The definition: along each axis, the number of interior cut keys (c, g) <= (x_a, gid)."""
+    idx = np.zeros((len(x), 3), dtype=np.int64)
+    for a in range(3):
+        c, cg = g.cuts[a][1:-1], g.cut_gids[a]
+        for k in range(len(c)):
+            idx[:, a] += (x[:, a] > c[k]) | ((x[:, a] == c[k]) & (gid >= cg[k]))
+    return idx[:, 0] + g.shape[0] * (idx[:, 1] + g.shape[1] * idx[:, 2])
+
+
+@pytest.mark.parametrize("grid", [(2, 1, 1), (3, 2, 2), (1, 3, 2), (2, 2, 2)])
+def test_gid_cuts_split_lattice_planes_to_one_element(grid):
+    """A lattice of 7 x 5 x 9 planes (odd: no coordinate cut can halve them) with gids in random
+    order: cuts by (coordinate, gid) leave every slice exactly its share of elements; coordinate
+    cuts alone are off by whole planes."""
+    rng = np.random.default_rng(sum(grid))
+    L = np.array([7.0, 5.0, 9.0])
+    x = np.array(list(itertools.product(*[np.arange(0.5, L[a]) for a in range(3)])))
+    gid = rng.permutation(len(x)) + 100     # consecutive: a cut gid is an element's gid
+    g = GridDecomposition(grid, [0, 0, 0], L, (True, True, True))
+    split = g.balanced(x, gid=gid)
+    idx = split.indices(x, gid)
+    np.testing.assert_array_equal(split.owner(x, gid), owner_by_keys(split, x, gid))
+    for a in range(3):
+        p = grid[a]
+        expected = np.diff(np.round(np.arange(p + 1) / p * len(x)))
+        np.testing.assert_array_equal(np.bincount(idx[:, a], minlength=p), expected)
+    planes = g.balanced(x)
+    off = max(np.abs(np.bincount(planes.indices(x)[:, a], minlength=grid[a])
+                     - len(x) / grid[a]).max() for a in range(3))
+    assert off >= len(x) / 9 / 2 - 1      # half a plane at least (the smallest plane: 7 x 5 = 35)
+
+
+@pytest.mark.parametrize("grid, periodic", [((3, 2, 2), (True, True, True)), ((2, 2, 2), (False, True, False)),
+                                            ((1, 3, 2), (True, False, True))])
+def test_ghosts_with_split_planes(grid, periodic):
+    """Lattice points on split cut planes (owned on either side by gid): the staged selection is
+    still the definition, and every pair within range (nearest neighbours and diagonals) is held by
+    both owners."""
+    rng = np.random.default_rng(7)
+    L = np.array([6.5, 6.5, 6.5])
+    x = lattice(L, 0.5)                       # 2,197 points, 13 planes per axis: no even split
+    gid = rng.permutation(len(x))
+    per = np.array(periodic)
+    r = 0.75                                  # reaches the 6 neighbours and 12 face diagonals
+    g = GridDecomposition(grid, [0, 0, 0], L, per).balanced(x, gid=gid, min_width=r)
+    owner = g.owner(x, gid)
+    idx = g.indices(x, gid)
+    # every cut lies on a lattice plane whose points are owned on both sides
+    for a in range(3):
+        for c in g.cuts[a][1:-1]:
+            assert len(np.unique(idx[x[:, a] == c, a])) == 2
+    ghosts, _ = g.staged_ghosts(x, r, gid)
+    held = {}
+    for q in range(g.size):
+        entries = as_set(*ghosts[q])
+        assert len(entries) == len(ghosts[q][0])
+        assert entries == as_set(*g.stencil_ghosts(q, x, r, gid))
+        assert entries == extended_box_ghosts(g, q, x, owner, r)
+        held[q] = entries | {(int(p), (0, 0, 0)) for p in np.nonzero(owner == q)[0]}
+    i, j, s = min_image_pairs(x, L, per, r)
+    assert len(i) > 3 * len(x)
+    for a, b, sh in zip(i, j, s):
+        assert (int(b), tuple(int(v) for v in sh)) in held[owner[a]]
+        assert (int(a), tuple(int(-v) for v in sh)) in held[owner[b]]

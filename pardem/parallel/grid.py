@@ -7,7 +7,10 @@ positions ``x`` with ``cuts[a][i_a] <= x_a < cuts[a][i_a + 1]`` on every axis ``
 holds ``p_a + 1`` planes [m]: on a periodic axis the first and last are the cell's faces (positions
 are wrapped into ``[lo, hi)`` for ownership); on an open axis they are ``-inf`` and ``+inf`` (an
 element outside the box still has an owner). Cuts are the same across a slice of the grid (a brick,
-LAMMPS ``balance shift``); slabs are the grid ``[p, 1, 1]``.
+LAMMPS ``balance shift``); slabs are the grid ``[p, 1, 1]``. With global ids, an interior cut is a
+key ``(c, g)`` as the slabs' (``pardem.parallel.slabs``): an element exactly on the plane ``c`` lies
+above it when its gid is at least ``g``, so a lattice plane can be split and the counts balanced to
+within one element (the default ``g``, the smallest int64, puts the whole plane above).
 
 Ghosts (LAMMPS ``comm_style brick``): rank ``r`` holds every image ``x + shift * L`` (``shift`` in
 {-1, 0, 1} per periodic axis, ``L`` the cell's edges; orthogonal cells) of a position owned
@@ -147,14 +150,18 @@ def imbalance(values):
     return float(v.max() / v.min() - 1.0) if v.min() > 0 else float("inf")
 
 
+_NO_GID = np.iinfo(np.int64).min     # a cut gid that puts the whole plane above the cut
+
+
 class GridDecomposition:
     """A brick grid over a box (module docstring).
 
     grid : (px, py, pz); lo, hi : the box [3] [m] (the cell on its periodic axes); periodic : [3]
-    bools; cuts : per axis the ``p_a - 1`` interior planes [m] (default: even spacing).
+    bools; cuts : per axis the ``p_a - 1`` interior planes [m] (default: even spacing); cut_gids :
+    per axis the ``p_a - 1`` gids that split elements lying exactly on a plane (default: none).
     """
 
-    def __init__(self, grid, lo, hi, periodic, cuts=None):
+    def __init__(self, grid, lo, hi, periodic, cuts=None, cut_gids=None):
         self.shape = tuple(int(p) for p in grid)
         if len(self.shape) != 3 or min(self.shape) < 1:
             raise ValueError(f"{GRID_FIELD} = {list(grid)}: expected three integers >= 1")
@@ -171,6 +178,17 @@ class GridDecomposition:
                 raise ValueError(f"cuts[{a}] = {inner.tolist()}: expected {p - 1} increasing planes [m]")
             ends = (self.lo[a], self.hi[a]) if self.periodic[a] else (-np.inf, np.inf)
             self.cuts.append(np.concatenate([[ends[0]], inner, [ends[1]]]))
+        self.cut_gids = []
+        for a, p in enumerate(self.shape):
+            g = np.full(p - 1, _NO_GID, dtype=np.int64) if cut_gids is None else np.asarray(cut_gids[a], dtype=np.int64)
+            if g.shape != (p - 1,):
+                raise ValueError(f"cut_gids[{a}]: expected {p - 1} gids, got {g.shape}")
+            self.cut_gids.append(g)
+
+    def _copy(self, cuts=None, cut_gids=None):
+        return GridDecomposition(self.shape, self.lo, self.hi, self.periodic,
+                                 [c[1:-1].copy() for c in self.cuts] if cuts is None else cuts,
+                                 [g.copy() for g in self.cut_gids] if cut_gids is None else cut_gids)
 
     # -- ranks and ownership --------------------------------------------------------------------
 
@@ -198,18 +216,30 @@ class GridDecomposition:
             x[x[:, a] >= self.hi[a], a] = self.lo[a]     # round-off of mod onto the upper face
         return x
 
-    def indices(self, x):
-        """Grid index of the owner of each position [n, 3] [m]: [n, 3] int64."""
+    def indices(self, x, gid=None):
+        """Grid index of the owner of each position [n, 3] [m]: [n, 3] int64. ``gid`` [n]: the
+        elements' global ids, needed where a cut splits a plane (without them an element on a cut
+        plane lies above it)."""
         x = self.wrapped(np.asarray(x, dtype=float).reshape(-1, 3))
         out = np.empty(x.shape, dtype=np.int64)
+        g = None if gid is None else np.asarray(gid, dtype=np.int64)
         for a in range(3):
-            # the number of interior cuts at or below x: the lower plane belongs to the subdomain
-            out[:, a] = np.searchsorted(self.cuts[a][1:-1], x[:, a], side="right")
+            c = self.cuts[a][1:-1]
+            # the number of interior cut keys at or below (x, gid), lexicographically
+            lo = np.searchsorted(c, x[:, a], side="left")
+            hi = np.searchsorted(c, x[:, a], side="right")
+            out[:, a] = hi
+            tied = np.nonzero(hi > lo)[0] if g is not None else ()
+            if len(tied):
+                for k in np.unique(lo[tied]):       # at most p_a - 1 distinct cut planes
+                    rows = tied[lo[tied] == k]
+                    b = hi[rows[0]]
+                    out[rows, a] = k + np.searchsorted(self.cut_gids[a][k:b], g[rows], side="right")
         return out
 
-    def owner(self, x):
-        """Rank owning each position [n, 3] [m] (vectorised): [n] int64."""
-        i = self.indices(x)
+    def owner(self, x, gid=None):
+        """Rank owning each position [n, 3] [m] (and gid [n]; vectorised): [n] int64."""
+        i = self.indices(x, gid)
         px, py, _ = self.shape
         return i[:, 0] + px * (i[:, 1] + py * i[:, 2])
 
@@ -233,7 +263,10 @@ class GridDecomposition:
             if p == 1 and self.length[a] < 2.0 * ghost_range:
                 raise DecompositionError(f"periodic axis {'xyz'[a]}: period {self.length[a]:.6g} m shorter "
                                          f"than twice the ghost range {ghost_range:.6g} m")
-            if not np.min(w) >= ghost_range:     # NaN too
+            split = np.any(self.cut_gids[a] != _NO_GID)
+            # an element on a split plane lies on both neighbours' faces: strictly wider, so the
+            # plane two subdomains away is farther than the range
+            if not (np.min(w) > ghost_range if split else np.min(w) >= ghost_range):     # NaN too
                 k = int(np.argmin(w))
                 raise DecompositionError(
                     f"subdomain {k} of {p} along {'xyz'[a]} is {w[k]:.4g} m thin, less than the ghost range "
@@ -304,15 +337,15 @@ class GridDecomposition:
             out.append((nb[0], rows.astype(np.int64), -nb[1]))
         return out
 
-    def staged_ghosts(self, x, ghost_range):
+    def staged_ghosts(self, x, ghost_range, gid=None):
         """All ranks' staged exchange in one process (bookkeeping only, no MPI): the ghosts of
         every rank of the positions ``x`` [n, 3] [m] (wrapped first) as ``{rank: (points,
         shifts)}`` (``points`` [g] indices into ``x``, ``shifts`` [g, 3] int, in arrival order),
         and the messages ``[(stage, sender, receiver, rows)]`` (self copies included, with sender
-        == receiver)."""
+        == receiver). ``gid`` [n]: the global ids (where a cut splits a plane)."""
         x = self.wrapped(x)
         self.check_widths(ghost_range)
-        owner = self.owner(x)
+        owner = self.owner(x, gid)
         P = self.size
         order = np.argsort(owner, kind="stable")
         starts = np.searchsorted(owner[order], np.arange(P + 1))
@@ -333,26 +366,19 @@ class GridDecomposition:
                     sh[r] = np.concatenate([sh[r]] + [s for _, s in incoming[r]])
         return {r: (pts[r][n_owned[r]:], sh[r][n_owned[r]:]) for r in range(P)}, messages
 
-    def stencil_ghosts(self, rank, x, ghost_range):
+    def stencil_ghosts(self, rank, x, ghost_range, gid=None):
         """The direct selection of ``rank``'s ghosts over its 26-neighbour stencil: for each
-        ``(offset, neighbour, shift)``, the positions owned by the neighbour whose image lies
-        within ``ghost_range`` [m] of the subdomain on the axes of ``offset`` (and inside it on the
-        others). Returns ``(points, shifts)`` as ``staged_ghosts``."""
+        ``(offset, neighbour, shift)``, the positions owned by the neighbour whose image lies in
+        the subdomain grown by ``ghost_range`` [m], ``[lo - r, hi + r)`` on every axis. Returns
+        ``(points, shifts)`` as ``staged_ghosts``."""
         x = self.wrapped(x)
-        owner = self.owner(x)
+        owner = self.owner(x, gid)
         lo, hi = self.bounds(rank)
         pts, shs = [], []
-        for off, nb, shift in self.stencil(rank):
+        for _, nb, shift in self.stencil(rank):
             rows = np.nonzero(owner == nb)[0]
             y = x[rows] + shift * self.length
-            keep = np.ones(len(rows), bool)
-            for a in range(3):
-                if off[a] < 0:
-                    keep &= (y[:, a] < lo[a]) & (y[:, a] >= lo[a] - ghost_range)
-                elif off[a] > 0:
-                    keep &= (y[:, a] >= hi[a]) & (y[:, a] < hi[a] + ghost_range)
-                else:
-                    keep &= (y[:, a] >= lo[a]) & (y[:, a] < hi[a])
+            keep = np.all((y >= lo - ghost_range) & (y < hi + ghost_range), axis=1)
             pts.append(rows[keep])
             shs.append(np.repeat(shift[None, :], int(keep.sum()), axis=0))
         if not pts:
@@ -361,26 +387,30 @@ class GridDecomposition:
 
     # -- cuts: balance and deformation ------------------------------------------------------------
 
-    def balanced(self, x, weights=None, allsum=None, axes=(0, 1, 2), min_width=0.0):
+    def balanced(self, x, weights=None, allsum=None, axes=(0, 1, 2), min_width=0.0, gid=None):
         """A grid of the same shape whose cuts along ``axes`` split the global weight evenly
         (LAMMPS ``balance shift``): on each axis ``a`` cut ``k`` lies just above (the next float)
         the smallest coordinate ``c`` of an element with ``W(x_a <= c) >= k / p_a`` of the total
         (a bisection on the
         coordinates' order-preserving integer image, 64 steps, each one ``allsum`` of the
-        ``sum_a (p_a - 1)`` partial sums; exact). ``x`` [n, 3] [m], ``weights`` [n] (default 1:
+        ``sum_a (p_a - 1)`` partial sums; exact). With ``gid`` [n] (the elements' global ids) the
+        cut is instead the key ``(c, g)`` at that element: ``g`` the smallest gid such that the
+        elements below the key weigh the target (64 more sums), so a lattice plane is split and each
+        slice holds its share to within one element. ``x`` [n, 3] [m], ``weights`` [n] (default 1:
         element counts; ``time_weights`` for measured seconds): this rank's share of the elements
         (any partition); ``allsum``: the sum over ranks of a float64 array (``Communicator.sum``;
         default: this process holds every element).
 
         Each slice along an axis then holds its share of the weight to within one element's weight
-        (elements with one coordinate, a lattice plane, cannot be split: to within one plane).
+        (without gids, elements with one coordinate, a lattice plane, are not split: to within one
+        plane).
         A brick balances the marginal distributions: a load that is a product of per-axis
         densities (a pour dense along z, a band across a box) is balanced on every rank, a dense
         corner is not (that needs recursive bisection). ``min_width`` [m]: the slices are then
         widened to at least this (the ghost range) where they were thinner, moving the balance.
         """
         allsum = (lambda v: np.asarray(v, dtype=float)) if allsum is None else allsum
-        same = GridDecomposition(self.shape, self.lo, self.hi, self.periodic, [c[1:-1] for c in self.cuts])
+        same = self._copy()
         x = self.wrapped(np.asarray(x, dtype=float).reshape(-1, 3))
         w = np.ones(len(x)) if weights is None else np.asarray(weights, dtype=float)
         axes = [a for a in axes if self.shape[a] > 1]
@@ -409,13 +439,41 @@ class GridDecomposition:
             ok = allsum(local) >= target - tol
             hi = np.where(ok, mid, hi)
             lo = np.where(ok, lo, mid)
-        # the cut just above that element's coordinate (the next float), so the slice below holds
-        # W(x_a <= c) = the target, not one element less (its lower plane belongs to a subdomain)
-        hi = np.minimum(hi + np.uint64(1), _unsigned(np.array([np.inf]))[0])
         new = [c[1:-1].copy() for c in self.cuts]
+        new_g = [g.copy() for g in self.cut_gids]
+        if gid is None:
+            # the cut just above that element's coordinate (the next float), so the slice below
+            # holds W(x_a <= c), the target, not one element less (a subdomain owns its lower plane)
+            hi = np.minimum(hi + np.uint64(1), _unsigned(np.array([np.inf]))[0])
+            for i, a in enumerate(axes):
+                new[a] = self._widened(a, _from_unsigned(hi[bounds[i]:bounds[i + 1]]), min_width)
+                new_g[a] = np.full(self.shape[a] - 1, _NO_GID, dtype=np.int64)
+            return self._copy(new, new_g)
+        gid = np.asarray(gid, dtype=np.int64)
+        c = _from_unsigned(hi)
+        col = np.concatenate([[a] * n for a, n in zip(axes, counts)])
+        below = np.concatenate([c_[np.searchsorted(k, h, side="left")]
+                                for k, c_, h in zip(sorted_keys, cum, np.split(hi, bounds[1:-1]))])
+        strict = allsum(below)           # W(x_a < c) < target
+        on = [(x[:, col[j]] == c[j]) for j in range(len(c))]
+        # the smallest g with W(x_a < c) + W(x_a == c, gid < g) >= target, bisected over all int64
+        g_lo = np.zeros(len(c), dtype=np.uint64)                  # int64 min: nothing below
+        g_hi = np.full(len(c), np.iinfo(np.uint64).max)           # int64 max: every gid below
+        while np.any(g_hi - g_lo > np.uint64(1)):
+            mid = g_lo + (g_hi - g_lo) // np.uint64(2)
+            m = (mid ^ _TOP).view(np.int64)
+            local = np.array([w[on[j] & (gid < m[j])].sum() for j in range(len(c))])
+            ok = strict + allsum(local) >= target - tol
+            g_hi = np.where(ok, mid, g_hi)
+            g_lo = np.where(ok, g_lo, mid)
+        cut_g = (g_hi ^ _TOP).view(np.int64)
         for i, a in enumerate(axes):
-            new[a] = self._widened(a, _from_unsigned(hi[bounds[i]:bounds[i + 1]]), min_width)
-        return GridDecomposition(self.shape, self.lo, self.hi, self.periodic, new)
+            ci = c[bounds[i]:bounds[i + 1]]
+            wide = self._widened(a, ci, min_width)
+            new[a] = wide
+            # a cut that min_width moved off its element's plane splits nothing
+            new_g[a] = np.where(wide == ci, cut_g[bounds[i]:bounds[i + 1]], _NO_GID)
+        return self._copy(new, new_g)
 
     def _widened(self, axis, inner, min_width):
         """Interior cuts moved apart (and off the periodic faces) to leave every slice
@@ -457,8 +515,8 @@ def time_weights(rank_seconds, n_owned):
     return np.full(int(n_owned), float(rank_seconds) / max(int(n_owned), 1))
 
 
-def rank_loads(decomposition, x, weights=None):
+def rank_loads(decomposition, x, weights=None, gid=None):
     """Per-rank load [P] of positions ``x`` [n, 3] (weights, default 1 each) under ``decomposition``
     (one process holding every element: a check, not an engine verb)."""
     w = np.ones(len(x)) if weights is None else np.asarray(weights, dtype=float)
-    return np.bincount(decomposition.owner(x), weights=w, minlength=decomposition.size)
+    return np.bincount(decomposition.owner(x, gid), weights=w, minlength=decomposition.size)
