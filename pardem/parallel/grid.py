@@ -320,10 +320,12 @@ class GridDecomposition:
     def stage_sends(self, rank, axis, x_held, ghost_range):
         """What ``rank`` sends in stage ``axis`` of the staged exchange, from the positions it holds
         now ``x_held`` [n, 3] [m] (owned rows, then the ghosts of the earlier stages, at their
-        images): a list of ``(neighbour, rows, shift)`` (at most 2; none past an open axis' end,
-        nothing along an open axis with p_a = 1): the rows within ``ghost_range`` [m] of the lower
-        face go to the lower neighbour, those within it of the upper face to the upper one, and the
-        receiver adds ``shift`` [3] int (cell edges) to their image. On a periodic axis with
+        images): a list of ``(side, neighbour, rows, shift)`` (at most 2; none past an open axis'
+        end, nothing along an open axis with p_a = 1): the rows within ``ghost_range`` [m] of the
+        lower face go to the lower neighbour (``side`` -1), those within it of the upper face to the
+        upper one (+1), and the receiver adds ``shift`` [3] int (cell edges) to their image. A rank
+        receives its lower neighbour's +1 message and its upper neighbour's -1 message (with p_a = 2
+        on a periodic axis, both from one rank: tell them apart by side). On a periodic axis with
         ``p_a = 1`` the neighbour is ``rank`` itself (a copy, no message)."""
         lo, hi = self.bounds(rank)
         s = np.asarray(x_held, dtype=float)[:, axis]
@@ -334,7 +336,7 @@ class GridDecomposition:
             if nb is None:
                 continue
             # the neighbour sees this rank's rows at the opposite image of this rank's view of it
-            out.append((nb[0], rows.astype(np.int64), -nb[1]))
+            out.append((side, nb[0], rows.astype(np.int64), -nb[1]))
         return out
 
     def staged_ghosts(self, x, ghost_range, gid=None):
@@ -357,7 +359,7 @@ class GridDecomposition:
             incoming = {r: [] for r in range(P)}
             for r in range(P):
                 held = x[pts[r]] + sh[r] * self.length
-                for nb, rows, shift in self.stage_sends(r, axis, held, ghost_range):
+                for _, nb, rows, shift in self.stage_sends(r, axis, held, ghost_range):
                     incoming[nb].append((pts[r][rows], sh[r][rows] + shift))
                     messages.append((axis, r, nb, len(rows)))
             for r in range(P):   # received after every rank sent: a stage's sends read the earlier stages only
