@@ -487,3 +487,16 @@ def test_staged_exchange_under_mpi(tmp_path, ranks, grid, periodic):
         assert row["same_cuts"] and row["owned_ok"] and row["ghosts_equal"], row
         assert row["duplicates"] == 0 and row["ghosts"] > 0
         assert row["messages"] <= 2 * sum(1 for p in grid if p > 1)
+
+
+def test_wrap_keeps_inside_rows_and_open_axes_own_everything():
+    """Rows inside the cell keep their bits (``lo + (x - lo)`` would not: ownership on a cut must
+    be the cell's own); outside, periodic axes wrap and open axes give the end subdomains."""
+    rng = np.random.default_rng(8)
+    lo, hi = np.array([0.1, -0.3, 0.0]), np.array([1.1, 0.7, 2.0])
+    g = GridDecomposition((2, 2, 3), lo, hi, (True, True, False))
+    x = lo + rng.uniform(0.0, 1.0, (5000, 3)) * (hi - lo)
+    np.testing.assert_array_equal(g.wrapped(x), x)
+    out = np.array([[1.1, 0.7, -5.0], [0.1 - 1e-3, -0.3, 9.0], [0.6, 0.2 + 3 * 1.0, 1.0]])
+    idx = g.indices(out)
+    np.testing.assert_array_equal(idx, [[0, 0, 0], [1, 0, 2], [1, 1, 1]])

@@ -209,11 +209,14 @@ class GridDecomposition:
         return r % px, (r // px) % py, r // (px * py)
 
     def wrapped(self, x):
-        """Positions [n, 3] [m] brought into ``[lo, hi)`` along the periodic axes (a copy)."""
+        """Positions [n, 3] [m] brought into ``[lo, hi)`` along the periodic axes (a copy; the rows
+        already inside keep their bits, so ownership is that of the cell's own wrap)."""
         x = np.array(x, dtype=float, copy=True)
         for a in np.nonzero(self.periodic)[0]:
-            x[:, a] = self.lo[a] + np.mod(x[:, a] - self.lo[a], self.length[a])
-            x[x[:, a] >= self.hi[a], a] = self.lo[a]     # round-off of mod onto the upper face
+            out = (x[:, a] < self.lo[a]) | (x[:, a] >= self.hi[a])
+            if np.any(out):
+                x[out, a] = self.lo[a] + np.mod(x[out, a] - self.lo[a], self.length[a])
+                x[out & (x[:, a] >= self.hi[a]), a] = self.lo[a]     # round-off of mod onto the upper face
         return x
 
     def indices(self, x, gid=None):
