@@ -377,7 +377,8 @@ def test_min_width_widens_thin_slices_and_follow_cell_keeps_owners():
 def test_decomposition_counts_model_matches_the_bookkeeping(tmp_path):
     """``benchmarks/decomposition_counts.py --check-only``: its exact lattice formula equals the
     staged-exchange bookkeeping rank by rank (the script stops otherwise), and its uniform-density
-    model is within 10 % of them (a lattice's planes fall in or out of a layer whole: 4-6 % here)."""
+    model is within 10 % of them (a lattice's planes fall in or out of a layer whole: 3.7-6.3 % at
+    these sizes, up to 12 % in the full table where cuts fall between planes unevenly)."""
     out = tmp_path / "counts.json"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([ROOT, os.environ.get("PYTHONPATH", "")])}
     res = subprocess.run([sys.executable, os.path.join(ROOT, "benchmarks", "decomposition_counts.py"),
