@@ -501,3 +501,47 @@ def test_wrap_keeps_inside_rows_and_open_axes_own_everything():
     out = np.array([[1.1, 0.7, -5.0], [0.1 - 1e-3, -0.3, 9.0], [0.6, 0.2 + 3 * 1.0, 1.0]])
     idx = g.indices(out)
     np.testing.assert_array_equal(idx, [[0, 0, 0], [1, 0, 2], [1, 1, 1]])
+
+
+@pytest.mark.parametrize("grid, periodic", [((3, 2, 2), (True, True, True)), ((2, 3, 1), (False, True, False)),
+                                            ((4, 1, 3), (True, False, False))])
+def test_migration_passes_bring_every_row_to_its_owner(grid, periodic):
+    """Rows start on arbitrary ranks; passes of x, y, z ``migration_sends`` (each rank sends, then
+    all receive) bring every row to its owner exactly once; rows that moved at most one subdomain
+    per axis since the last placement need a single pass."""
+    rng = np.random.default_rng(9)
+    L = np.array([1.0, 1.2, 0.9])
+    x = uniform(rng, 3000, L, 3)
+    gid = rng.permutation(len(x))
+    g = GridDecomposition(grid, [0, 0, 0], L, periodic).balanced(x, gid=gid)
+    owner = g.owner(x, gid)
+
+    def run(held):
+        passes = 0
+        while any(len(g.migration_sends(q, a, x[held[q]], gid[held[q]])) for q in range(g.size) for a in range(3)):
+            passes += 1
+            assert passes <= max(grid)
+            for a in range(3):
+                moved = {q: [] for q in range(g.size)}
+                for q in range(g.size):
+                    keep = np.ones(len(held[q]), bool)
+                    for side, nb, rows in g.migration_sends(q, a, x[held[q]], gid[held[q]]):
+                        moved[nb].append(held[q][rows])
+                        keep[rows] = False
+                    held[q] = held[q][keep]
+                for q in range(g.size):
+                    held[q] = np.concatenate([held[q]] + moved[q])
+        return held, passes
+
+    start = rng.integers(0, g.size, len(x))
+    held, _ = run({q: np.nonzero(start == q)[0] for q in range(g.size)})
+    for q in range(g.size):
+        np.testing.assert_array_equal(np.sort(held[q]), np.nonzero(owner == q)[0])
+    # a small displacement (less than every subdomain's width): one pass
+    x_before = x.copy()
+    x = g.wrapped(x + rng.normal(0.0, 0.03, x.shape)) if all(periodic) else x + rng.normal(0.0, 0.03, x.shape)
+    held, passes = run(held)
+    owner = g.owner(x, gid)
+    assert passes == 1 and not np.array_equal(g.owner(x_before, gid), owner)
+    for q in range(g.size):
+        np.testing.assert_array_equal(np.sort(held[q]), np.nonzero(owner == q)[0])

@@ -20,7 +20,8 @@ to its lower and upper neighbour along ``d`` the rows it holds (owned, and ghost
 earlier stages) within ``ghost_range`` of that face, with the image shift of a message that crosses
 the periodic face; so 6 messages bring the 26 neighbours' rows, corners through two or three
 hops. One hop per stage needs every subdomain (but an open axis' two outer ones) at least
-``ghost_range`` wide (``check_widths``).
+``ghost_range`` wide (``check_widths``). Migration goes the same way, one axis at a time
+(``migration_sends``).
 """
 import itertools
 
@@ -340,6 +341,30 @@ class GridDecomposition:
                 continue
             # the neighbour sees this rank's rows at the opposite image of this rank's view of it
             out.append((side, nb[0], rows.astype(np.int64), -nb[1]))
+        return out
+
+    def migration_sends(self, rank, axis, x_owned, gid=None):
+        """Migration along ``axis`` (one pass of ``exchange``, x, then y, then z): the rows of
+        ``x_owned`` [n, 3] [m] (with ``gid`` [n]) whose owner's grid index along ``axis`` differs
+        from ``rank``'s, as ``[(side, neighbour, rows)]``: -1 toward lower indices, +1 toward
+        higher ones, the short way round on a periodic axis (as the slabs'). Rows move one
+        subdomain per pass; between rebuilds an element moves less than one, so one pass per axis
+        places everything, and a re-cut repeats the passes until nothing is misplaced."""
+        mine = self.index_of(rank)[axis]
+        target = self.indices(x_owned, gid)[:, axis]
+        p = self.shape[axis]
+        if self.periodic[axis]:
+            d = (target - mine) % p
+            up, down = (d > 0) & (d <= p // 2), d > p // 2
+        else:
+            up, down = target > mine, target < mine
+        out = []
+        for side, mask in ((-1, down), (1, up)):
+            nb = self.neighbour(rank, axis, side)
+            if nb is not None and np.any(mask):
+                out.append((side, nb[0], np.nonzero(mask)[0].astype(np.int64)))
+            elif np.any(mask):
+                raise DecompositionError(f"rank {rank}: rows owned past the open end of axis {'xyz'[axis]}")
         return out
 
     def staged_ghosts(self, x, ghost_range, gid=None):
