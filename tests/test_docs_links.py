@@ -100,3 +100,20 @@ def test_the_checker_finds_a_broken_file_link_and_a_broken_anchor(tmp_path):
                     "[ok](#page) [web](https://example.org/x.md)\n[gone](missing.md) [no](other.md#nowhere)\n"
                     "`[in code](missing2.md)`\n\n    [indented](missing3.md)\n\n```\n[fenced](missing4.md)\n```\n")
     assert broken_links(page) == [("missing.md", "no such file"), ("other.md#nowhere", "no such heading")]
+
+
+def python_blocks(path):
+    return re.findall(r"^```python\n(.*?)^```", path.read_text(encoding="utf-8"), re.S | re.M)
+
+
+def test_the_readme_script_is_the_getting_started_script_and_uses_exported_names():
+    """The README's script is run by hand when the docs change; here it stays one text with the
+    getting-started page's copy, compiles, and names only what pardem exports (a renamed API
+    name fails here without running the script)."""
+    import pardem
+
+    readme = python_blocks(ROOT / "README.md")
+    assert len(readme) == 1 and readme == python_blocks(ROOT / "docs" / "getting-started.md")[:1]
+    compile(readme[0], "README.md", "exec")
+    names = set(re.findall(r"\bpardem\.([A-Za-z_]\w*)", readme[0]))
+    assert names and sorted(n for n in names if n not in pardem.__all__) == []
