@@ -202,7 +202,7 @@ def loaded(prepared):
 
 def test_one_and_two_ranks_agree(loaded):
     """Bit for bit: contacts summed in gid order and exact global sums make the trajectory
-    independent of the rank count (README, "The same results on any number of ranks")."""
+    independent of the rank count (docs/parallel.md, "The same results on any number of ranks")."""
     a, b = loaded[1], loaded[2]
     np.testing.assert_array_equal(a["gid"], b["gid"])
     for key in ("x", "v", "w", "keys", "hist", "rows", "length", "rate"):

@@ -98,7 +98,7 @@ def parser(comm=None):
                    help="verify on a small cube (verify.quick_elements per edge) instead of the deck's domain")
     p.add_argument("--steps", type=int, metavar="N",
                    help="--verify: run each verification run for N steps only (smoke tests; a run too short "
-                        "to measure its modulus ends with exit code 4)")
+                        "to measure its modulus ends with exit code 5)")
     p.add_argument("--restart", metavar="DIR",
                    help="continue the verification whose output is DIR: the runs recorded in DIR/records are "
                         "not run again; the same deck and options are required (the deck defaults to DIR's); "

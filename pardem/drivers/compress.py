@@ -3,7 +3,7 @@
     python -m pardem.drivers.compress [--config deck.toml] [--set section.key=value ...]
                                       [--out DIR] [--steps N]
 
-Writes ``DIR/summary.json`` and ``DIR/series.csv`` (see README). With no options it runs the default
+Writes ``DIR/summary.json`` and ``DIR/series.csv`` (docs/outputs.md). With no options it runs the default
 case: the 10 mm cube of 21^3 elements compressed along x to 0.5 % nominal strain.
 """
 import os
