@@ -163,3 +163,28 @@ def test_a_stopped_compress_run_restarts_with_the_uninterrupted_series(tmp_path,
         ou, orr = np.argsort(u["elements/gid"][...]), np.argsort(r["elements/gid"][...])
         for k in ("x", "v", "w", "f"):
             assert np.array_equal(u["elements/" + k][...][ou], r["elements/" + k][...][orr]), k
+
+
+# -- the watchdog after a stop --------------------------------------------------------------
+
+def test_a_final_checkpoint_longer_than_the_watchdog_limit_is_written(tmp_path, monkeypatch):
+    """2 ranks, ``run.watchdog_seconds = 10``, SIGTERM to mpiexec, a final checkpoint held 15 s
+    (``PARDEM_CHECKPOINT_PAUSE``, as a large checkpoint on a slow file system): the stopped time
+    loop says it left (``watchdog.pause``), so the watchdog does not take the ranks writing it for
+    ranks that stopped progressing; the run ends with 143 and its final checkpoint. (Before, the
+    watchdog aborted the job with exit 1 during the write, and the checkpoint was lost.)"""
+    from test_signals import SMALL, Job, stop_lines
+    monkeypatch.setenv("PARDEM_CHECKPOINT_PAUSE", "15")
+    out = tmp_path / "run"
+    job = Job(["-m", "pardem.drivers.compress", *SMALL, "--set", "run.watchdog_seconds=10", "--out", str(out)])
+    try:
+        job.wait_for("step ", timeout=300)
+        job.p.send_signal(signal.SIGTERM)
+        job.finish(timeout=300)
+    finally:
+        job.kill()
+    assert job.p.returncode == 128 + signal.SIGTERM, job.stderr[-3000:]
+    assert "watchdog" not in job.stderr, job.stderr[-3000:]
+    (line,) = stop_lines(job)
+    ck = line.split("restart with --restart ")[1].strip()
+    assert "final checkpoint" in line and os.path.isfile(ck), line
