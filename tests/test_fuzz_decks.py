@@ -1,12 +1,13 @@
 """Property-based fuzzing of every driver's deck (issue 16, items 6 and 7).
 
-For each driver (compress, isotropic, triaxial, calibrate, anisotropy) decks are generated from its
-schema: defaults, the bounds of every numeric key and their neighbours, choice values, and wild
-values (0, negatives, 1e-300, 1e308, 5e-324, NaN, inf, huge integers, wrong types, empty lists,
-strings). Loading a deck must either succeed or raise ``DeckError`` with a one-line message naming
-a deck key; no other exception. The slow part runs the drivers on a few generated decks in a
-subprocess with ``--steps 3`` (or their smallest run) and a timeout: no traceback, no hang, an
-exit code of the documented set. The issue's "accepted nonsense" inputs are explicit cases.
+For each driver (compress, isotropic, triaxial, calibrate, anisotropy, mixture, response, biaxial)
+decks are generated from its schema: defaults, the bounds of every numeric key and their
+neighbours, choice values, and wild values (0, negatives, 1e-300, 1e308, 5e-324, NaN, inf, huge
+integers, wrong types, empty lists, strings). Loading a deck must either succeed or raise
+``DeckError`` with a one-line message naming a deck key; no other exception. The slow part runs
+the drivers on a few generated decks in a subprocess with ``--steps 3`` (or their smallest run)
+and a timeout: no traceback, no hang, an exit code of the documented set. The issue's "accepted
+nonsense" inputs are explicit cases.
 """
 import copy
 import math
@@ -479,8 +480,23 @@ SMALL_RUNS = {
     "anisotropy": (["pardem.drivers.anisotropy", "--quick", "--kinds", "ordered", "--laws", "hankinson",
                     "--ratios", "1", "--xi-step", "0", "--no-plot"],
                    {"domain.box", "domain.radius", "domain.kind", "loading.strain", "loading.plate_speed"}),
+    # one case of 40 grains whose preparation and moduli relaxations are capped at 200 steps (an
+    # unjammed packing: the study records it and goes on)
+    "mixture": (["pardem.drivers.mixture", "--quick", "--ratios", "1", "--concentrations", "0.5", "--realisations", "1",
+                 "--no-plot", "--set", "sample.n=40", "--set", "preparation.max_steps=200",
+                 "--set", "moduli.max_relax_steps=200"],
+                {"sample.n", "sample.radii", "sample.fractions", "preparation.pressures", "preparation.max_steps",
+                 "preparation.check_every", "moduli.max_relax_steps"}),
+    # --steps stops the response's relaxations at their first check at or after it
+    "response": (["pardem.drivers.response", "--config", os.path.join(DRIVERS_DIR, "response_short.toml"),
+                  "--set", "sample.n=40", "--set", "output.plot=false", "--steps", "3"],
+                 {"sample.n", "sample.radii", "replicate.copies", "preparation.check_every", "relax.check_every"}),
+    "biaxial": (["pardem.drivers.biaxial", "--config", os.path.join(DRIVERS_DIR, "biaxial_short.toml"),
+                 "--set", "sample.n=40", "--set", "output.plot=false", "--steps", "3"],
+                {"sample.n", "sample.radii", "replicate.copies"}),
 }
-RUNS_PER_DRIVER = {"compress": 3, "isotropic": 2, "triaxial": 2, "calibrate": 2, "anisotropy": 1}
+RUNS_PER_DRIVER = {"compress": 3, "isotropic": 2, "triaxial": 2, "calibrate": 2, "anisotropy": 1, "mixture": 1,
+                   "response": 1, "biaxial": 1}
 RUN_TIMEOUT = 150   # s: a run of a few steps of a small deck on a loaded 2-core machine takes < 60 s
 
 

@@ -148,8 +148,6 @@ class Biaxial(GranularDriver):
         cur["membrane"] = self.mem.state() if self.mem is not None else None
         if self.sweep is not None:
             cur["sweep"] = self.sweep.snapshot(interrupted=run.interrupted is not None)
-        # a stop signal ends a step before its operations: the resumed loading runs them first
-        cur["replay"] = run.interrupted is not None
         cur["platen_reactions"] = (run.comm.sum(np.concatenate([p.reaction for p in self.platens])).tolist()
                                    if self.platens else None)       # collective: every rank writes the payload
         clock = self.clock.state(run.sim.step_count) if self.clock is not None else run.state.get("clock")
@@ -266,6 +264,7 @@ class Biaxial(GranularDriver):
                                          f"sliding {row['sliding_fraction']:.3f}")
         biaxial.load(run.case, deck, cur, self.mem, self.platens, on_row, run.operations, stop,
                      on_event=lambda step: self.event(run, step), record=self.record,
+                     # set only by a stop checkpoint of an earlier version (its step's operations undone)
                      replay=resume and cur.pop("replay", False))
         rows = [r for r in run.series.rows if r["pressure_index"] == k]
         result = {"pc": pc, "preparation": cur["prep"], "sample": {kk: cur["geo"][kk] for kk in

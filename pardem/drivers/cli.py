@@ -8,7 +8,9 @@ files are written); 128 + N stopped by signal N (143 SIGTERM, 130 SIGINT, 138 SI
 error or a silent rank (the watchdog), all ranks are aborted. A rank killed by SIGKILL (``kill -9``,
 the kernel's out-of-memory killer) can say nothing: mpiexec.mpich then kills the other ranks at once
 with SIGKILL too (no handler runs; it prints its own "BAD TERMINATION ... EXIT CODE: 9" banner) and
-exits 9 (srun: 137); the checkpoints written before are intact (atomic writes).
+exits 9 (srun: 137); the checkpoints written before are intact (atomic writes). Under
+``mpiexec.mpich -disable-auto-cleanup`` the other ranks live on and the watchdog names the dead
+rank after its limit, then aborts the job.
 
 Signals (``stop_signals``): SIGTERM, SIGINT and SIGUSR1 only record a stop request
 (``pardem.engine.stop``); the time loop reduces it over ranks every ``check_every`` steps and

@@ -342,9 +342,15 @@ class Simulation:
 
         ``force``: the caller already knows from a collective that some rank did.
         ``stop_requests``: also raise ``Interrupted`` on every rank if any rank received a stop
-        signal (``pardem.engine.stop``), in the same reduction; ``run`` asks every ``check_every``
-        steps, so that all ranks stop at the same step boundary.
+        signal (``pardem.engine.stop``), in the same reduction.
         """
+        signum = self._stability_and_stop(force, stop_requests)
+        if signum:
+            raise Interrupted(signum, self.step_count)
+
+    def _stability_and_stop(self, force=False, stop_requests=False):
+        """``check_stability``'s reduction: raises ``InstabilityError`` on every rank; returns the
+        stop signal some rank received (``stop_requests``), the same on every rank, or 0."""
         if force:
             unstable, signum = True, 0
         else:
@@ -361,8 +367,7 @@ class Simulation:
                 f"{LOADING_SPEEDS:g} times the plates' speed, at most max_speed: Integration.max_step_displacement "
                 f"and max_speed set them; or a non-finite position, "
                 f"velocity, force or state)")
-        if signum:
-            raise Interrupted(signum, self.step_count)
+        return signum
 
     def evolving_fields(self):
         """(name, array) of every field the steps change on this rank: the owned rows' x, v, w, q,
@@ -416,6 +421,13 @@ class Simulation:
         runs and on the last step (the state the caller gets back: a checkpoint stores them).
         Between those steps the loop costs one integer comparison a step: each trigger's
         ``next_after`` says the next step to look at.
+
+        Stop signals (``pardem.engine.stop``) are reduced over ranks with the stability check,
+        every ``check_every`` steps and at the last step; a stop raises ``Interrupted`` on every
+        rank at that step once its operations have run (on the last step, the ``at_end`` ones
+        too), so the state it leaves is the one the uninterrupted run has there: a checkpoint of
+        it continues that run bit for bit, whatever the operations change (FIRE's step, a servo,
+        a sampler's rows).
         """
         if (isinstance(n_steps, (bool, np.bool_)) or not isinstance(n_steps, (int, np.integer))
                 or n_steps < 0):
@@ -443,6 +455,7 @@ class Simulation:
         look = [t.next_after(self.step_count) for t in triggers]   # None: never again
         due = min((s for s in look if s is not None), default=None)
         ran = ()
+        stopping = 0      # a stop signal every rank agreed on at this step
         while self.step_count < end:
             after = self.step_count + 1
             ran = ()
@@ -457,13 +470,19 @@ class Simulation:
             self.step(with_energy=bool(ran) or after == end)
             watchdog.beat()          # this rank's progress, for the watchdog and the signal handler
             if self.step_count % self.check_every == 0 or self.step_count == end:
-                self.check_stability(stop_requests=True)
+                stopping = self._stability_and_stop(stop_requests=True)
             if self.step_count != end:
                 for i in ran:
                     operations[i](self)
+                if stopping:
+                    # after this step's operations, as a periodic checkpoint of it would see them
+                    watchdog.pause()
+                    raise Interrupted(stopping, self.step_count)
         self._reduce_globals(again=self.step_count == 0)   # walls.force, fix.global_reaction: end of run
         # the last step's operations with the at_end ones, in list order, each once
         for i, op in enumerate(operations):
             if at_end[i] or i in ran:
                 op(self)
         watchdog.pause()    # out of the time loop: the caller may do long serial work now
+        if stopping:
+            raise Interrupted(stopping, self.step_count)

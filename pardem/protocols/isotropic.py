@@ -462,12 +462,17 @@ def sweep(comm, deck, pressures, progress=None, case=None, run=None):
                 # linearises (no tangential force); collective, nothing of the simulation changes
                 t1 = time.perf_counter()
                 static = moduli_check.static_moduli(sim, deck["material"], strain_of(deck, det))
-                det["static"] = moduli_check.compact(static)
-                row["K_static"], row["mu_static"] = det["static"]["K_static"], det["static"]["mu_static"]
-                if progress is not None:   # (its wall time is in details' seconds, not in the record:
-                    # the records are compared bit for bit between rank counts)
-                    progress.say(f"  static moduli (linear response, {time.perf_counter() - t1:.1f} s): "
-                                 f"K = {row['K_static']:.6g}, mu = {row['mu_static']:.6g} Pa")
+                if static is None:     # no backbone: K_static, mu_static stay None
+                    det["static"] = None
+                    if progress is not None:
+                        progress.say("  static moduli: none (no grain has two contacts: not jammed)")
+                else:
+                    det["static"] = moduli_check.compact(static)
+                    row["K_static"], row["mu_static"] = det["static"]["K_static"], det["static"]["mu_static"]
+                    if progress is not None:   # (its wall time is in details' seconds, not in the record:
+                        # the records are compared bit for bit between rank counts)
+                        progress.say(f"  static moduli (linear response, {time.perf_counter() - t1:.1f} s): "
+                                     f"K = {row['K_static']:.6g}, mu = {row['mu_static']:.6g} Pa")
             st["row"], st["det"], st["moduli"], st["increment"] = row, det, None, None
             st["stage"] = "K" if mo["enabled"] else "measured"
             if progress is not None:
@@ -484,7 +489,7 @@ def sweep(comm, deck, pressures, progress=None, case=None, run=None):
             mod = moduli(sim, deck, e, progress, run=run, resume=resume)
             for k in MODULI_KEYS:
                 row[k] = mod[k]
-            if "static" in det:
+            if det.get("static") is not None:
                 mod["static"] = moduli_check.compare(det["static"], mod)
             det["moduli"] = mod
             det["moduli_seconds"] = time.perf_counter() - t1

@@ -139,7 +139,12 @@ def measure(sim, dim):
     species = (radius > radius.min() * (1.0 + 1e-9)).astype(np.int64)     # 0 small, 1 large
     g = structure.pair_distribution(x, box, r_max, n_bins=G_BINS, dim=dim,
                                     species=species if species.max() > 0 else None)
-    forces = structure.force_distribution(fn[kept & (fn > 0)], edges=FORCE_EDGES)
+    carried = fn[kept & (fn > 0)]
+    if len(carried):
+        forces = structure.force_distribution(carried, edges=FORCE_EDGES)
+    else:   # no force at all: an unjammed packing (a preparation capped before it jammed)
+        forces = {"edges": FORCE_EDGES, "density": np.full(len(FORCE_EDGES) - 1, np.nan),
+                  "moments": {k: float("nan") for k in (2, 3, 4)}, "mean": float("nan")}
     out = {"Z": coord["Z"], "Z_no_rattlers": coord["Z_no_rattlers"], "rattlers": int(coord["rattlers"]),
            "rattler_fraction": coord["rattler_fraction"], "n_contacts": int(coord["n_contacts"]),
            "fabric": np.asarray(F).tolist(), "fabric_anisotropy": a, "order_name": order_name, "order": float(order),

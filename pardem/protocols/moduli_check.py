@@ -92,7 +92,9 @@ def gather_network(sim):
 def static_moduli(sim, material, strain=None):
     """Static moduli of the packing of ``sim`` (collective; module docstring). ``material``: the
     isotropic deck's ``[material]`` (shear_modulus, poisson, friction); ``strain``: the protocol's
-    increment e (None: no secant and no sliding estimate)."""
+    increment e (None: no secant and no sliding estimate). None, on every rank, for a packing
+    without a backbone (no grain has two contacts: a gas, e.g. a preparation capped by
+    ``preparation.max_steps`` before it jammed)."""
     g = gather_network(sim)
     out = None
     if g is not None:
@@ -105,6 +107,8 @@ def evaluate(g, material, strain=None):
     G, nu = float(material["shear_modulus"]), float(material["poisson"])
     e_star, g_star = effective_moduli(2.0 * G * (1.0 + nu), nu)
     net = lr.hertz_mindlin_branches(g["n"], g["i"], g["j"], g["d"], g["radius"], g["volume"], e_star, g_star)
+    if not lr.backbone(net)[0].any():
+        return None      # nothing rigid to strain (the relaxation would refuse it)
     touch = g["delta"] > 0.0
     fn = net.fn
     max_ft = float(np.max(g["ht"][touch] / np.where(fn > 0, fn, 1.0))) if len(fn) else 0.0

@@ -57,9 +57,10 @@ def run_stages(state, stages, resume=False, key="stage"):
 
 def replay(sim, operations, at_end=False):
     """Run the operations of ``operations`` due on the current step (and with ``at_end`` those
-    whose ``at_end`` is true), in list order: a stop signal ends ``sim.run`` after a step and
-    before that step's operations, so a run resumed from the checkpoint written then runs them
-    first, as the uninterrupted run did (FIRE's mixing, the servo stiffness, a sample). Collective."""
+    whose ``at_end`` is true), in list order. For the checkpoints of a stop signal written by
+    earlier versions, whose ``sim.run`` ended after a step and before that step's operations: a
+    run resumed from one runs them first, as the uninterrupted run did (FIRE's mixing, the servo
+    stiffness, a sample). ``sim.run`` now runs them before it stops. Collective."""
     k = sim.step_count
     for op in operations:
         if as_trigger(op.trigger)(k) or (at_end and getattr(op, "at_end", False)):
@@ -108,8 +109,8 @@ class SweepRun:
     ``exact_stop``, at that step, inside a check interval if need be).
 
     ``state``: a checkpoint's (the sweep then continues it); None starts the sweep. A state
-    stored by ``snapshot(interrupted=True)`` (a stop signal's checkpoint) makes the resumed
-    relaxation first run the operations that signal left out (``replay``).
+    holding ``replay`` (a stop signal's checkpoint written by an earlier version, whose stop left
+    its step's operations undone) makes the resumed relaxation first run them (``replay``).
     """
 
     def __init__(self, operations=(), on_check=None, stop=None, state=None, exact_stop=False):
@@ -126,12 +127,11 @@ class SweepRun:
         self.fire = None
 
     def snapshot(self, interrupted=False):
-        """The state to store now (the FIRE operation's counters included); ``interrupted``: a
-        stop signal ended the last step before its operations (they run first on resume)."""
+        """The state to store now (the FIRE operation's counters included). ``interrupted`` (a
+        stop signal ended the run) changes nothing: ``sim.run`` stops after the operations of
+        its last step, so a stop's checkpoint resumes as any other."""
         out = dict(self.state)
         out["fire"] = None if self.fire is None else {k: getattr(self.fire, k) for k in FIRE_STATE}
-        if interrupted:
-            out["replay"] = True
         return out
 
     def before_run(self, sim):
@@ -157,7 +157,8 @@ def relax(sim, tol, check_every, max_steps, p0=None, progress=None, label="", op
         done = sim.step_count - start
         at_check = first and done > 0 and done % check_every == 0
         if first and run is not None and getattr(run, "replay", False):
-            # at a check the uninterrupted run's sim.run ended there: its at_end operations too
+            # an earlier version's stop checkpoint; at a check the uninterrupted run's sim.run
+            # ended there: its at_end operations too
             replay(sim, ops, at_end=at_check)
             run.replay = False
         first = False
