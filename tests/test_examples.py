@@ -158,6 +158,33 @@ def test_pour_cylinder_inserts_the_distribution_and_settles(pour_cylinder_one_ra
     assert "PASS" in out
 
 
+def test_pour_cylinder_wall_holds_the_bed_at_rest(pour_cylinder_one_rank):
+    res = pour_cylinder_one_rank
+    assert res.returncode == 0, res.stdout + res.stderr
+    out = res.stdout
+    assert "cylinder radius" in out
+    # every grain inside the cylinder wall, reaching into it by less than the 0.05 r overlap bound
+    # of the code's time step (engine.walls.WALL_OVERLAP_BOUND)
+    assert number(r"inside the cylinder: (\d+) of", out) == 500
+    assert number(r"deepest wall overlap " + FLOAT, out) < 0.05
+    # mass conserved: the bed's mass is the sum of the batches' masses as they arrived (two float
+    # sums of the same 500 terms in different orders: 1e-12 relative)
+    m_bed = number(r"; mass " + FLOAT, out)
+    assert number(r"inserted " + FLOAT + " kg", out) == pytest.approx(m_bed, rel=1e-12)
+    # the bed's mass from the printed weight M g (g = 9.81 m/s^2): an independent product
+    assert number(r"weight M g " + FLOAT, out) == pytest.approx(m_bed * 9.81, rel=1e-12)
+    # the walls' total force is (0, 0, -M g) to the momentum bound of velocity Verlet over the
+    # window (2 sqrt(2 M K) / T, examples/pour.py); the frictionless cylinder carries no weight
+    weight = number(r"weight M g " + FLOAT, out)
+    assert number(r"largest difference from \(0, 0, -M g\) " + FLOAT, out) <= number(r"\(tolerance " + FLOAT + " N",
+                                                                                     out) < 5e-3 * weight
+    fz = number(r"cylinder \(\S+, \S+, " + FLOAT, out)
+    assert abs(fz) <= 1e-12 * weight
+    # at rest: the kinetic energy stays below the settling threshold over the undamped window
+    assert number(r"over the undamped window " + FLOAT, out) < 1e-6
+    assert "PASS" in out
+
+
 @pytest.mark.mpi
 @pytest.mark.skipif(MPIEXEC is None, reason="no mpiexec")
 def test_pour_cylinder_gives_the_same_bed_on_two_ranks(pour_cylinder_one_rank):
