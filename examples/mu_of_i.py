@@ -22,9 +22,13 @@ Eur. Phys. J. E 14, 341 (2004) for the inertial number):
 
     mu(I) = mu_s + (mu_2 - mu_s) / (I0 / I + 1)
 
-and the script writes ``mu_of_i.csv`` (units in the header) and ``mu_of_i.png`` (mu against I, log
-I axis, the points with their error bars, the fit and the experimental curve of Jop et al. for
-glass beads) into ``--out``.
+When the points do not bound the saturation (the weighted fit runs ``mu_2`` or ``I0`` to a bound of
+its box, or their errors exceed them: with I <= 0.3 the data hardly reach the curve's bend at
+``I ~ I0``), the script says so and fits ``mu_s, mu_2`` again with ``I0`` fixed at Jop et al.'s 0.279.
+It writes ``mu_of_i.csv`` (units in the header) and ``mu_of_i.png`` (mu against I, log I axis, the
+points with their error bars, the fits and the experimental curve of Jop et al. for glass beads)
+into ``--out``. The full run has 1000 grains: 1 strain unit at the first level (from the gas),
+then 0.3 + 2 strain units per level; the level I = 1e-3 alone takes about 1.4e5 steps.
 
 Checks (exit status 1 if one fails):
 
