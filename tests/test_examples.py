@@ -158,6 +158,33 @@ def test_pour_cylinder_inserts_the_distribution_and_settles(pour_cylinder_one_ra
     assert "PASS" in out
 
 
+def test_pour_cylinder_wall_holds_the_bed_at_rest(pour_cylinder_one_rank):
+    res = pour_cylinder_one_rank
+    assert res.returncode == 0, res.stdout + res.stderr
+    out = res.stdout
+    assert "cylinder radius" in out
+    # every grain inside the cylinder wall, reaching into it by less than the 0.05 r overlap bound
+    # of the code's time step (engine.walls.WALL_OVERLAP_BOUND)
+    assert number(r"inside the cylinder: (\d+) of", out) == 500
+    assert number(r"deepest wall overlap " + FLOAT, out) < 0.05
+    # mass conserved: the bed's mass is the sum of the batches' masses as they arrived (two float
+    # sums of the same 500 terms in different orders: 1e-12 relative)
+    m_bed = number(r"; mass " + FLOAT, out)
+    assert number(r"inserted " + FLOAT + " kg", out) == pytest.approx(m_bed, rel=1e-12)
+    # the bed's mass from the printed weight M g (g = 9.81 m/s^2): an independent product
+    assert number(r"weight M g " + FLOAT, out) == pytest.approx(m_bed * 9.81, rel=1e-12)
+    # the walls' total force is (0, 0, -M g) to the momentum bound of velocity Verlet over the
+    # window (2 sqrt(2 M K) / T, examples/pour.py); the frictionless cylinder carries no weight
+    weight = number(r"weight M g " + FLOAT, out)
+    assert number(r"largest difference from \(0, 0, -M g\) " + FLOAT, out) <= number(r"\(tolerance " + FLOAT + " N",
+                                                                                     out) < 5e-3 * weight
+    fz = number(r"cylinder \(\S+, \S+, " + FLOAT, out)
+    assert abs(fz) <= 1e-12 * weight
+    # at rest: the kinetic energy stays below the settling threshold over the undamped window
+    assert number(r"over the undamped window " + FLOAT, out) < 1e-6
+    assert "PASS" in out
+
+
 @pytest.mark.mpi
 @pytest.mark.skipif(MPIEXEC is None, reason="no mpiexec")
 def test_pour_cylinder_gives_the_same_bed_on_two_ranks(pour_cylinder_one_rank):
@@ -271,3 +298,56 @@ def test_drum_gives_the_same_angle_on_two_ranks(drum_one_rank):
     # the wall forces are float sums over ranks: equal to round-off at the printed 4 digits
     assert number(r"walls carry " + FLOAT, two.stdout) == pytest.approx(
         number(r"walls carry " + FLOAT, drum_one_rank.stdout), abs=2e-4)
+
+
+def mu_of_i_levels(out):
+    """The printed levels of examples/mu_of_i.py: {I_target: (I, P [Pa], mu, stderr)}."""
+    rows = re.findall(r"^\s+(\S+)\s+(\S+)\s+\S+\s+\S+\s+(\S+)\s+(\S+)\s+(\S+)\s+\S+\s+\S+\s+\d+$", out, re.M)
+    return {float(t): tuple(float(v) for v in rest) for t, *rest in rows}
+
+
+@pytest.fixture(scope="module")
+def mu_of_i_one_rank(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("mu_of_i")
+    return run("mu_of_i.py", "--quick", "--out", str(folder)), folder
+
+
+def test_mu_of_i_friction_rises_with_the_inertial_number(mu_of_i_one_rank):
+    res, folder = mu_of_i_one_rank
+    assert res.returncode == 0, res.stdout + res.stderr
+    levels = mu_of_i_levels(res.stdout)
+    assert sorted(levels) == [0.01, 0.3]
+    (i_lo, p_lo, mu_lo, e_lo), (i_hi, p_hi, mu_hi, e_hi) = levels[0.01], levels[0.3]
+    # the servo holds the normal stress at 1e5 Pa: the measured I is the target within the flow's
+    # scatter of P (a few percent: I ~ P^(-1/2))
+    for p in (p_lo, p_hi):
+        assert p == pytest.approx(1e5, rel=0.05)
+    assert i_lo == pytest.approx(0.01, rel=0.03) and i_hi == pytest.approx(0.3, rel=0.03)
+    # what a short run can show: mu at I = 0.3 above mu at I = 0.01 by twice their combined block
+    # standard error (the example's --quick criterion; the published law gives a rise of ~0.1)
+    assert mu_hi - mu_lo > 2.0 * (e_lo ** 2 + e_hi ** 2) ** 0.5
+    # dense frictional flow: both in the range of steady friction of grains of friction 0.5
+    # (0.3-0.6: quasi-static ~0.37 to ~0.5 at I = 0.3, Jop et al. 2006), far from frictionless ~0.1
+    assert 0.3 < mu_lo < mu_hi < 0.6
+    # the CSV carries units and the printed values; the figure is written
+    text = (folder / "mu_of_i.csv").read_text().splitlines()
+    assert text[0].startswith("# I_target [-], I [-], gamma_dot [1/s], tau [Pa], P [Pa], mu [-]")
+    rows = [[float(v) for v in line.split(",")] for line in text[1:]]
+    assert [r[0] for r in rows] == [0.01, 0.3]
+    assert rows[0][5] == pytest.approx(mu_lo, abs=1e-6) and rows[1][5] == pytest.approx(mu_hi, abs=1e-6)
+    assert rows[1][3] / rows[1][4] == pytest.approx(rows[1][5], rel=1e-9)      # mu = tau / P
+    assert (folder / "mu_of_i.png").stat().st_size > 1000
+    assert "PASS" in res.stdout
+
+
+@pytest.mark.mpi
+@pytest.mark.skipif(MPIEXEC is None, reason="no mpiexec")
+def test_mu_of_i_gives_the_same_curve_on_two_ranks(mu_of_i_one_rank, tmp_path):
+    one, folder = mu_of_i_one_rank
+    two = run("mu_of_i.py", "--quick", "--out", str(tmp_path), ranks=2)
+    assert two.returncode == 0, two.stdout + two.stderr
+    assert "2 rank(s)" in two.stdout
+    # reproducible lists and exact stress sums, the kinetic stress from the gathered rows in gid
+    # order: the same trajectory bits, so the same CSV to the last printed digit
+    assert mu_of_i_levels(two.stdout) == mu_of_i_levels(one.stdout)
+    assert (tmp_path / "mu_of_i.csv").read_text() == (folder / "mu_of_i.csv").read_text()
