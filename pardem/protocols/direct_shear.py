@@ -43,8 +43,7 @@ from pardem.errors import StepLimit
 from pardem.physics import wall_motion
 from pardem.physics.contact_laws import critical_time_step, law_params
 from pardem.protocols import output_deck
-from pardem.protocols.granular_output import CHECKPOINT_SECTION, run_section
-from pardem.triggers import At, Or
+from pardem.protocols.granular_output import CHECKPOINT_SECTION, RowSampler, run_section
 
 AXES = "xyz"
 TOP = 1                  # the lid's plane row (planes: floor, lid, y = 0, y = W)
@@ -223,24 +222,6 @@ def sample(case):
             "kinetic_energy": sim.kinetic_energy()}
 
 
-class Sampler:
-    """Operation recording ``sample`` rows every ``every`` steps and at the step ``final``; a step
-    already recorded is not recorded again (a run cut in pieces samples the uncut run's steps)."""
-
-    def __init__(self, case, every, final, rows, on_row=None):
-        self.case, self.rows, self.on_row = case, rows, on_row
-        self.trigger = Or([every, At(final)])
-        self.at_end = False
-
-    def __call__(self, sim):
-        if self.rows and self.rows[-1]["step"] == sim.step_count:
-            return
-        row = sample(self.case)
-        self.rows.append(row)
-        if self.on_row is not None:
-            self.on_row(row)
-
-
 def prepare(case, deck, operations=(), stop=None):
     """Run the preparation to ``preparation.steps`` (StepLimit at ``stop``)."""
     sim = case.sim
@@ -257,7 +238,8 @@ def shear(case, deck, rows, operations=(), stop=None, on_row=None):
     sim = case.sim
     start = case.extras["shear_step"]
     total = shear_steps(deck)
-    sampler = Sampler(case, max(1, total // deck["output"]["samples"]), start + total, rows, on_row)
+    sampler = RowSampler(lambda: sample(case), max(1, total // deck["output"]["samples"]), start + total,
+                         rows, on_row)
     if not rows:
         sim.run(0)      # the wall forces of the current state
         sampler(sim)

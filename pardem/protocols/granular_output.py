@@ -24,6 +24,7 @@ from pardem.protocols.output_deck import CHECKPOINT_SECTION  # noqa: F401 - the 
 from pardem.io import checkpoint
 from pardem.io.series import SeriesCSV, dict_row
 from pardem.io.series_h5 import SeriesH5
+from pardem.triggers import At, Or
 
 
 def dimension_value(name, v):
@@ -216,3 +217,22 @@ class StageClock:
                 "seconds_per_step": {k: sec[k] / steps[k] if steps.get(k) else None for k in sec},
                 "element_steps_per_second": {k: n_elements(k) * steps[k] / sec[k] if steps.get(k) and sec[k] > 0
                                              else None for k in sec}}
+
+
+class RowSampler:
+    """Operation appending ``sample()`` (a dict with ``"step"``) to ``rows`` every ``every`` steps
+    and at the step ``final``, then calling ``on_row(row)``; a step already recorded is not
+    recorded again, so a run cut in pieces samples the steps of the uncut run."""
+
+    def __init__(self, sample, every, final, rows, on_row=None):
+        self.sample, self.rows, self.on_row = sample, rows, on_row
+        self.trigger = Or([every, At(final)])
+        self.at_end = False
+
+    def __call__(self, sim):
+        if self.rows and self.rows[-1]["step"] == sim.step_count:
+            return
+        row = self.sample()
+        self.rows.append(row)
+        if self.on_row is not None:
+            self.on_row(row)

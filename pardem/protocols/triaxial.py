@@ -38,9 +38,8 @@ from pardem.physics.contact_laws import critical_time_step, law_params
 from pardem.config import DeckError, Field, Schema, auto_or, choice, number, positive
 from pardem.protocols import deck_checks as dc
 from pardem.engine.periodic_cell import PeriodicCell
-from pardem.triggers import At, Or, as_trigger
 from pardem.parallel.exact_sum import exact_sum
-from pardem.protocols.granular_output import CHECKPOINT_SECTION, StepLimit, run_section
+from pardem.protocols.granular_output import CHECKPOINT_SECTION, RowSampler, StepLimit, run_section
 from pardem.protocols import output_deck
 
 AXES = "xyz"
@@ -332,29 +331,6 @@ def sample(case):
             "kinetic_energy": sim.kinetic_energy()}
 
 
-class Sampler:
-    """Operation recording ``sample`` rows on the steps of ``trigger`` (an int period [steps] or a
-    ``Trigger``) and after the last step of every run; with ``final``, on the steps of ``trigger``
-    and the step ``final`` only (a first row is the caller's), so that a run cut in pieces samples
-    the steps of the uncut one. A step already recorded is not recorded again."""
-
-    def __init__(self, case, trigger, rows=None, on_row=None, final=None):
-        self.case = case
-        self.trigger = as_trigger(trigger) if final is None else Or([trigger, At(final)])
-        self.at_end = final is None
-        self.rows = [] if rows is None else rows
-        self.on_row = on_row
-        self.final = final
-
-    def __call__(self, sim):
-        if self.rows and self.rows[-1]["step"] == sim.step_count:
-            return
-        row = sample(self.case)
-        self.rows.append(row)
-        if self.on_row is not None:
-            self.on_row(row)
-
-
 def load(case, deck, steps=None, rows=None, operations=(), progress=None, stop=None, on_row=None):
     """Run the triaxial loading (``steps`` from its start; default to the final strain), sampling
     ``output.samples`` rows (``rows``: those of the loading so far, for a restored case). Returns
@@ -372,7 +348,7 @@ def load(case, deck, steps=None, rows=None, operations=(), progress=None, stop=N
                                          f"broken = {row['broken_fraction']:.3f}")
         if on_row is not None:
             on_row(row)
-    sampler = Sampler(case, every, rows, report, final=start + total)
+    sampler = RowSampler(lambda: sample(case), every, start + total, [] if rows is None else rows, report)
     if not sampler.rows:
         sampler(sim)
     n = start + total - sim.step_count
