@@ -8,7 +8,6 @@ import sys
 import numpy as np
 import pytest
 
-from pardem.io import figures
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SMALL = os.path.join(ROOT, "drivers", "isotropic_small.toml")

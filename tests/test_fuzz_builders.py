@@ -9,7 +9,6 @@ exception. ``benchmarks/fuzz_probe.py`` runs the same generator for longer.
 import math
 
 import numpy as np
-import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 

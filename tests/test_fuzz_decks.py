@@ -20,7 +20,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from pardem.config import DeckError, Schema, check_deck, raw_deck
+from pardem.config import DeckError, Schema, check_deck
 from pardem.io.deck_file import load_deck
 from pardem.protocols import anisotropy_study as study
 from pardem.protocols import biaxial

@@ -8,8 +8,6 @@ every step, so the last one kept is the last state that passed the check. With t
 alone (``max_speed`` = 1e4 m/s for 0.25 mm elements) that state was already a runaway: elements
 moving several radii per step.
 """
-import glob
-import os
 
 import numpy as np
 import pytest

@@ -70,7 +70,7 @@ def test_ranks_in_different_collectives_are_named_with_theirs(monkeypatch):
     assert LIMIT <= elapsed < LIMIT + LATE, elapsed
     (line,) = lines
     assert f"{SHOWN}:{marked('# <- the call')};" in line, line
-    assert f"rank 1 has waited" in line and f"in Communicator.barrier called from {SHOWN}:{marked('# <- rank 1 waits')} " in line, line
+    assert "rank 1 has waited" in line and f"in Communicator.barrier called from {SHOWN}:{marked('# <- rank 1 waits')} " in line, line
     assert "the ranks are in different collectives" in line, line
 
 

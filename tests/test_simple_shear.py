@@ -75,7 +75,6 @@ def test_tilted_list_matches_brute_force(tilt, owned_fraction):
 def test_tilted_list_with_a_non_periodic_axis():
     """xy shear between planes normal to z (z not periodic): the tilt couples x and y only."""
     rng = np.random.default_rng(3)
-    L = np.array([1.0, 1.0, 0.0])
     t = np.array([-0.37, 0.0, 0.0])
     n = 200
     x = rng.uniform(0.0, 1.0, (n, 3))

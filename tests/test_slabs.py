@@ -3,7 +3,6 @@ import numpy as np
 import pytest
 
 from pardem.parallel.slabs import Slabs, _from_ordered_int, _ordered_int, choose_axis, imbalance
-from tests._util import FakeComm
 
 
 def owner_brute(slabs, s, gid):

@@ -104,7 +104,7 @@ class Isotropic(GranularDriver):
         return run.state["sweep"].snapshot()
 
     def start(self, run):
-        deck, sim = run.deck, run.sim
+        deck = run.deck
         pressures = sorted(deck["preparation"]["pressures"])
         n = deck["sample"]["n"]
         kind = "spheres" if stages.dimension(deck) == 3 else "spheres in the plane z = 0 (2D)"

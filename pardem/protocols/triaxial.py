@@ -35,7 +35,7 @@ from pardem.engine import granular
 from pardem.engine.system import (Cell, ContactModel, Decomposition, Integration, Particles, System,
                                   set_contact_params)
 from pardem.physics.contact_laws import critical_time_step, law_params
-from pardem.config import DeckError, Field, Schema, auto_or, choice, number, positive
+from pardem.config import DeckError, Field, Schema, choice, number, positive
 from pardem.protocols import deck_checks as dc
 from pardem.engine.periodic_cell import PeriodicCell
 from pardem.parallel.exact_sum import exact_sum
