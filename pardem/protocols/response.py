@@ -78,6 +78,15 @@ the periodic images of the load, averaged over the same x bins) and for an elast
 packing's height below the load on a rigid base (``pardem.physics.flamant.layer_sigma_zz``,
 Fourier series, 2D Poisson ratio ``comparison.poisson``). The bottom row, a rigid or fixed top row
 and the loaded grain are left out of the bins.
+
+Beside the relaxation, each load point's record has ``linear``: the static linear response of the
+reference network (``static_linear``: ``pardem.physics.linear_response.StaticResponse``, no
+sliding, no opening, under the supports of step 3, ``boundary_conditions``) measured by the same
+code (``linear_measure``: the same bins and widths), and ``contact_changes``: the contacts that
+opened, closed or slid in the load step, counts [1] (``contact_changes``; the Coulomb limit is
+sampled at every relaxation check of the static stage and at the dynamic snapshots, so ``slid``
+is a lower bound). With several load points ``static.linear`` is the average of the points'
+linear profiles and ``static.contact_changes`` the sums.
 """
 import json
 import math
@@ -1086,4 +1095,5 @@ def _point_record(layer, deck, st, on_record, label):
 
 __all__ = ["SCHEMA", "RUN_STAGES", "RigidRow", "Layer", "prepared", "make_layer", "respond", "measure", "gather_state",
            "contact_table", "apply_load", "relax_layer", "wave_speed", "iso_deck", "SERIES_COLUMNS", "new_state",
-           "layer_state", "restore_layer", "response_arrays", "restore_response"]
+           "layer_state", "restore_layer", "response_arrays", "restore_response", "boundary_conditions",
+           "reference_network", "static_linear", "linear_state", "linear_measure", "sample_limit", "contact_changes"]
