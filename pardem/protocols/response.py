@@ -1004,10 +1004,10 @@ def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=No
                     sim.run(end - sim.step_count, list(operations))
                 cur = gather_state(sim)
                 if cur is not None:
-                    c = cur["contacts"]
-                    lim = lr.at_coulomb_limit(c["normal"], c["force"], deck["load"]["friction"])
+                    cc = cur["contacts"]
+                    lim = lr.at_coulomb_limit(cc["normal"], cc["force"], deck["load"]["friction"])
                     layer.limit_keys = np.union1d(np.zeros(0, np.int64) if layer.limit_keys is None
-                                                  else layer.limit_keys, lr.pair_keys(c["gid_i"][lim], c["gid_j"][lim]))
+                                                  else layer.limit_keys, lr.pair_keys(cc["gid_i"][lim], cc["gid_j"][lim]))
                 res = measure(layer, layer.ref, cur, deck)
                 if res is not None:
                     res.update(time_after_load=sim.time - st["t_load"], time_over_transit=tau, step=sim.step_count)
