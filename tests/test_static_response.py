@@ -118,8 +118,12 @@ def test_superposition(relaxed):
     F = res["force"]
     A = np.zeros((n, 3))
     A[layer.loaded_gid, 1] = -F
-    gb = response.loaded_grain(layer, 0.25)
-    assert gb != layer.loaded_gid
+    # B: a free grain (not a piston: its x load must act) a quarter period away, at mid height
+    g = layer.geometry
+    target = np.array([g["lo"][0] + 0.75 * g["length"][0], g["lo"][1] + 0.5 * g["length"][1]])
+    free = np.asarray(layer.free)
+    gap = np.abs(ref["x"][free, :2] - target)
+    gb = int(free[np.argmin(np.hypot(np.minimum(gap[:, 0], g["length"][0] - gap[:, 0]), gap[:, 1]))])
     B = np.zeros((n, 3))
     B[gb] = (0.5 * F, -0.8 * F, 0.0)
     sa = response.static_linear(layer, ref, deck, A)
@@ -281,3 +285,38 @@ def test_bad_inputs():
     assert not sr.kept[1]          # one contact: it rolls about it (a rattler)
     with pytest.raises(ValueError, match="grain 1 is loaded"):
         sr.solve(np.array([[0.0, 0, 0], [1.0, 0, 0]]))
+
+
+def test_contact_changes_count_sliding_and_opening():
+    """A load of 5 % of the mean contact force with friction 1e-3: contacts near the load slide.
+    The summary's counts against a brute-force recount from the gathered states (sets of gid
+    pairs; the Coulomb limit |ft| >= (1 - 1e-9) mu fn written out): opened and closed equal it,
+    ``slid`` (sampled during the load step) is at least the contacts newly at the limit at the end,
+    and positive."""
+    comm = Communicator()
+    deck = load_deck(response.SCHEMA, SHORT, [
+        "sample.n=120", "load.fraction=0.05", "load.friction=1e-3", "dynamic.times=[0.5]",
+        "relax.force_tolerance=1e-8", "output.perturbation_vtk=false", "output.plot=false"])
+    case, _ = response.prepared(comm, deck)
+    layer = response.make_layer(comm, case, deck)
+    res = response.respond(layer, deck)
+    ref, cur = layer.ref, response.gather_state(layer.sim)
+
+    def pairs(c):
+        return {(int(a), int(b)) for a, b in zip(c["gid_i"], c["gid_j"])}
+
+    def limit(c):
+        out = set()
+        for a, b, n, f in zip(c["gid_i"], c["gid_j"], c["normal"], c["force"]):
+            fn = -float(n @ f)
+            ft = f + fn * n
+            if fn > 0 and np.sqrt(ft @ ft) >= (1 - 1e-9) * 1e-3 * fn:
+                out.add((int(a), int(b)))
+        return out
+
+    ch = res["static"]["contact_changes"]
+    p0, p1 = pairs(ref["contacts"]), pairs(cur["contacts"])
+    assert ch["opened"] == len(p0 - p1) and ch["closed"] == len(p1 - p0)
+    l0, l1 = limit(ref["contacts"]), limit(cur["contacts"])
+    assert ch["at_coulomb_limit_reference"] == len(l0) and ch["at_coulomb_limit_loaded"] == len(l1)
+    assert ch["slid"] >= len(l1 - l0) and ch["slid"] > 0
