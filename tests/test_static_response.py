@@ -185,6 +185,16 @@ def test_response_carries_the_load_at_every_depth(layers, top):
         expect = F
     for yc in cuts:
         assert crossing_sums(layer, ref, lin, yc) == pytest.approx(expect, rel=1e-9, abs=1e-9 * F)
+    # the top row's motion: none (fixed), one vertical translation (rigid: a tie, exact), grain by
+    # grain (free); x and the rotations held in every case
+    uy = lin["u"][layer.top, 1]
+    assert np.all(lin["u"][layer.top, 0] == 0.0) and np.all(lin["theta"][layer.top] == 0.0)
+    if top == "fixed":
+        assert np.all(uy == 0.0)
+    elif top == "rigid":
+        assert np.ptp(uy) == 0.0 and uy[0] != 0.0
+    else:
+        assert np.ptp(uy) > 0.1 * np.abs(uy).max()
 
 
 def test_reciprocity(layers):
