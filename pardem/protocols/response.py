@@ -830,6 +830,15 @@ def static_linear(layer, ref, deck, force=None, torque=None, solver=None):
         held, ties = boundary_conditions(layer)
         solver = lr.StaticResponse(reference_network(layer, ref, deck), held, ties)
     out = solver.solve(force, torque)
+    c = ref["contacts"]
+    if solver.net.n_contacts != len(c["gid_i"]):
+        # a contact whose overlap rounds to zero from its arms is left out of the network (no force,
+        # no stiffness): the changes go back to the table's rows (sorted by gid pair, as the keys)
+        idx = np.searchsorted(lr.pair_keys(c["gid_i"], c["gid_j"]), lr.pair_keys(solver.net.i, solver.net.j))
+        for k in ("force", "torque_i", "torque_j"):
+            full = np.zeros((len(c["gid_i"]), 3))
+            full[idx] = out[k]
+            out[k] = full
     out["solver"] = solver
     return out
 
