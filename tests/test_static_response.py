@@ -136,8 +136,7 @@ def test_superposition(relaxed):
     fx.add(layer.sim, load)
     b2, ok, _ = response.relax_layer(layer, deck, "A + B")
     cur = response.gather_state(layer.sim)
-    fx_remove = layer.sim.fixes.remove
-    fx_remove(load)
+    layer.sim.fixes.remove(load)
     assert ok
     assert np.array_equal(cur["contacts"]["gid_i"], ref["contacts"]["gid_i"])
     d_rel = cur["contacts"]["force"] - ref["contacts"]["force"]
