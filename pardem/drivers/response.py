@@ -18,7 +18,10 @@ and transit time, the reference state, ``static`` and ``dynamic`` (each: x and d
 [m], ``dsigma_yy`` [nz][nx] [Pa], ``transmitted_over_F`` per layer, profile widths, the same for
 Flamant's half-plane and the layer on a rigid base, the width fits; with several load points
 ``static`` is their average, with ``dsigma_yy_sem`` and ``points``, and ``static_points`` has each
-point's own), the reactions of the rows, geometry, deck, timings), ``DIR/response.csv`` and ``DIR/response.h5`` (one row per relaxation
+point's own; ``static.linear``: the same measures of the static linear response of the reference
+contact network, no sliding, no opening, under the same supports; ``static.contact_changes``: the
+contacts that ``opened``, ``closed`` or ``slid`` in the load step, and those at the Coulomb limit in
+the reference and loaded states, counts [1]), the reactions of the rows, geometry, deck, timings), ``DIR/response.csv`` and ``DIR/response.h5`` (one row per relaxation
 check: ``pardem.protocols.response.SERIES_COLUMNS``), ``DIR/response.png`` (needs matplotlib),
 ``DIR/response_vtk/response.pvd`` (the perturbation per grain, ``output.perturbation_vtk``) and
 ParaView snapshots of the whole state in ``DIR/paraview`` (``output.vtk_every``), checkpoints in

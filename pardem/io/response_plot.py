@@ -4,8 +4,8 @@ of the perturbation (``response_vtk/response.pvd``). Rank 0 only (the protocol g
 ``plot(path, result)``: four panels (needs matplotlib; a note on stderr and no file otherwise):
 (a) the static profiles ``-dsigma_yy / (F / (t z))`` against ``x / z`` at a few depths, with
 Flamant's ``2 / (pi (1 + x^2/z^2)^2)`` (the same scaled form at every depth); (b) the profile half
-width at half maximum against depth with Flamant's ``0.6436 z``, the layer on a rigid base and the
-diffusive fit ``sqrt(2 D z)``; (c) the transmitted force ``-t sum dsigma_yy dx / F`` per layer;
+width at half maximum against depth with Flamant's ``0.6436 z``, the layer on a rigid base, the
+diffusive fit ``sqrt(2 D z)`` and the static linear response's widths (``static.linear``); (c) the transmitted force ``-t sum dsigma_yy dx / F`` per layer;
 (d) the dynamic profiles at the layer closest to mid-depth, one line per snapshot time.
 
 ``PerturbationVTK(directory)``: one VTK XML unstructured grid per record (``response-KKK.vtu``,
@@ -53,6 +53,11 @@ def plot(path, result):
     a.plot(z / d, np.asarray(fw) / d, "k--", label="Flamant (binned)")
     lw = [np.nan if w is None else w for w in st["layer_on_rigid_base"]["width_half_max"]]
     a.plot(z / d, np.asarray(lw) / d, "b:", label="layer on rigid base")
+    lin = st.get("linear")
+    if lin is not None:
+        nz = min(len(z), len(lin["width_half_max"]))
+        lh = [np.nan if w is None else w for w in lin["width_half_max"][:nz]]
+        a.plot(z[:nz] / d, np.asarray(lh) / d, "gs", mfc="none", label="static linear (no sliding, no opening)")
     D = st["fits_half_max"]["D"]
     if D:
         a.plot(z / d, np.sqrt(2 * D * z) / d, "r-.", label=f"diffusive sqrt(2 D z), D = {D / d:.3g} d")
@@ -61,7 +66,10 @@ def plot(path, result):
     a.set_title("profile width")
     a.legend(fontsize=8)
     a = ax[1, 0]
-    a.plot(z / d, st["transmitted_over_F"], "o-")
+    a.plot(z / d, st["transmitted_over_F"], "o-", label="relaxed")
+    if lin is not None:
+        a.plot(z[:nz] / d, lin["transmitted_over_F"][:nz], "gs", mfc="none", label="static linear")
+        a.legend(fontsize=8)
     a.axhline(1.0, color="k", ls="--", lw=0.8)
     a.set_xlabel("depth z [mean diameters]")
     a.set_ylabel("-t sum dsigma_yy dx / F [-]")

@@ -312,6 +312,24 @@ def backbone(net, min_contacts=2):
     return alive, live
 
 
+def refined_solve(A, lu, b, tol=1e-13, max_refine=50):
+    """``(x, residual)``: ``A x = b`` by iterative refinement with the factorisation ``lu`` of a
+    shifted ``A`` (``A + shift I``): ``x += lu.solve(b - A x)`` until ``|b - A x| / |b| < tol``
+    (or ``max_refine`` rounds); the relative residual is returned with ``x``."""
+    nb = float(np.linalg.norm(b))
+    z = np.zeros_like(b)
+    res = 0.0 if nb == 0.0 else 1.0
+    for _ in range(max_refine):
+        if nb == 0.0:
+            break
+        r = b - A @ z
+        res = float(np.linalg.norm(r)) / nb
+        if res < tol:
+            break
+        z += lu.solve(r)
+    return z, res
+
+
 class Relaxation:
     """The factorised relaxation problem of a network (see the module docstring, steps 1-4).
 
@@ -343,18 +361,7 @@ class Relaxation:
     def solve(self, f, tol=1e-13, max_refine=50):
         """``z`` [6 n] solving ``H z = f`` on the free DOFs (zeros elsewhere), and the relative
         residual ``|H z - f| / |f|`` on them (iterative refinement to ``tol``)."""
-        b = np.asarray(f, dtype=float)[self.free]
-        nb = float(np.linalg.norm(b))
-        z = np.zeros_like(b)
-        res = 0.0 if nb == 0.0 else 1.0
-        for _ in range(max_refine):
-            if nb == 0.0:
-                break
-            r = b - self.Hf @ z
-            res = float(np.linalg.norm(r)) / nb
-            if res < tol:
-                break
-            z += self.lu.solve(r)
+        z, res = refined_solve(self.Hf, self.lu, np.asarray(f, dtype=float)[self.free], tol, max_refine)
         full = np.zeros(6 * self.net.n)
         full[self.free] = z
         return full, res
@@ -499,3 +506,173 @@ def protocol_moduli(n, i, j, d, radius, volume, stress, e_star, g_star, strain, 
             out[f"{name}_{kind}_tangents"] = t
         dd, vol, s = d1, v1, s1           # the shear starts where the bulk increment ended
     return out
+
+
+# ---------------------------------------------------------------------------------------------
+# the static response to loads on grains, under boundary conditions
+
+PLANE_HELD = (2, 3, 4)      # the DOFs a 2D packing holds: u_z, theta_x, theta_y
+
+
+def anchored_backbone(net, held, ties=(), min_contacts=2):
+    """Masks ``(kept [n], contacts [nc])`` of the grains and contacts of the static response:
+    grains with no held DOF and fewer than ``min_contacts`` contacts removed repeatedly (a grain
+    held by one contact rolls about it at no force: a zero mode; a grain with a held DOF is never
+    removed, its contact fixes what the support leaves free), then only the connected clusters
+    (contacts, and the grains of each tie joined) holding an anchor, a grain all of whose six DOFs
+    are held (any other cluster is free to move as a body at no force). ``held`` [n, 6] bool."""
+    held = np.asarray(held, dtype=bool)
+    pinned = held.any(axis=1)
+    alive = np.ones(net.n, dtype=bool)
+    live = np.ones(net.n_contacts, dtype=bool)
+    while True:
+        deg = np.bincount(net.i[live], minlength=net.n) + np.bincount(net.j[live], minlength=net.n)
+        drop = alive & ~pinned & (deg < min_contacts)
+        if not drop.any():
+            break
+        alive &= ~drop
+        live &= alive[net.i] & alive[net.j]
+    a = [net.i[live]]
+    b = [net.j[live]]
+    for grains, _ in ties:
+        g = np.asarray(grains, dtype=np.int64)
+        a.append(g[:-1])
+        b.append(g[1:])
+    a, b = np.concatenate(a), np.concatenate(b)
+    graph = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(net.n, net.n))
+    _, label = connected_components(graph, directed=False)
+    anchored = np.unique(label[held.all(axis=1)])
+    alive &= np.isin(label, anchored)
+    live &= alive[net.i] & alive[net.j]
+    return alive, live
+
+
+class StaticResponse:
+    """The static linear response of a contact network held by supports to loads on its grains:
+    normal and tangential springs of every contact (``stiffness_matrix``: no sliding, no opening,
+    the reference tangential forces taken as zero, see the module docstring), one sparse solve.
+
+    held [n, 6] bool: the DOFs held at zero (translations x, y, z, rotations x, y, z of each grain;
+    a 2D packing holds ``PLANE_HELD`` of every grain); ties: ``(grains [k], dof)`` pairs, DOF
+    ``dof`` (not held) of the grains moving as one (a rigid row; the load on it is the sum of its
+    grains' loads). Zero modes: rattlers and unanchored clusters are removed
+    (``anchored_backbone``); what remains singular is handled as in ``Relaxation`` (step 4: a
+    Tikhonov shift ``reg`` in the factorisation only, iterative refinement with the unshifted
+    matrix), and ``solve`` reports the relative residual. ``scale`` [m]: the rotation scale.
+    Attributes: ``kept`` [n], ``contacts`` [nc] masks, ``sub`` (the kept contacts' network),
+    ``T`` [6 n, m] (the reduced coordinates ``q``: DOFs ``z = T q``), ``K`` [m, m] (``T^T H T``).
+    """
+
+    def __init__(self, net, held, ties=(), scale=None, reg=1e-10, min_contacts=2):
+        held = np.asarray(held, dtype=bool)
+        if held.shape != (net.n, 6):
+            raise ValueError(f"StaticResponse: held must be [{net.n}, 6] bool, got shape {held.shape}")
+        ties = [(np.asarray(g, dtype=np.int64), int(k)) for g, k in ties]
+        for g, k in ties:
+            if not 0 <= k < 6 or len(g) == 0 or g.min() < 0 or g.max() >= net.n or held[g, k].any():
+                raise ValueError(f"StaticResponse: a tie must name grains in [0, {net.n}) and a DOF in [0, 6) "
+                                 "that none of them holds")
+        if not held.all(axis=1).any():
+            raise ValueError("StaticResponse: no grain has all its DOFs held (no anchor: the network is free)")
+        self.net, self.held = net, held
+        self.scale = default_scale(net) if scale is None else float(scale)
+        self.kept, self.contacts = anchored_backbone(net, held, ties, min_contacts)
+        self.sub = net.subset(self.contacts)
+        H = stiffness_matrix(self.sub, self.scale)
+        free = self.kept[:, None] & ~held
+        col = -np.ones((net.n, 6), dtype=np.int64)
+        m = 0
+        for g, k in ties:
+            g = g[self.kept[g]]
+            if len(g):
+                col[g, k] = m
+                free[g, k] = False
+                m += 1
+        idx = np.nonzero(free.ravel())[0]
+        col.ravel()[idx] = m + np.arange(len(idx))
+        m += len(idx)
+        rows = np.nonzero(col.ravel() >= 0)[0]
+        self.T = sp.csr_matrix((np.ones(len(rows)), (rows, col.ravel()[rows])), shape=(6 * net.n, m))
+        self.K = (self.T.T @ H @ self.T).tocsc()
+        self.H = H
+        self.shift = float(reg * np.mean(self.K.diagonal())) if m else 0.0
+        self.lu = splu((self.K + self.shift * sp.identity(m, format="csc")).tocsc()) if m else None
+
+    def loads(self, force, torque=None):
+        """The generalised load [6 n] of per-grain forces [n, 3] [N] and torques [n, 3] [N m]."""
+        force = np.asarray(force, dtype=float)
+        torque = np.zeros_like(force) if torque is None else np.asarray(torque, dtype=float)
+        if force.shape != (self.net.n, 3) or torque.shape != (self.net.n, 3):
+            raise ValueError(f"StaticResponse: force and torque must be [{self.net.n}, 3]")
+        return np.concatenate([force, torque / self.scale], axis=1).ravel()
+
+    def solve(self, force, torque=None, tol=1e-12, max_refine=50):
+        """The response to the loads ``force`` [n, 3] [N] and ``torque`` [n, 3] [N m] (added to the
+        reference state's): dict with ``u`` [n, 3] [m], ``theta`` [n, 3] [rad] per grain (zero on
+        removed grains), per contact of the network the changes ``force`` [nc, 3] [N] of the force
+        on i, ``torque_i``, ``torque_j`` [nc, 3] [N m] (zero on removed contacts), the supports'
+        reactions ``reaction_force`` [n, 3] [N], ``reaction_torque`` [n, 3] [N m] (what the held
+        DOFs and ties add to the grains at equilibrium) and the relative ``residual``. A load on a
+        removed grain's free DOF is refused (ValueError: the response would be undefined)."""
+        f = self.loads(force, torque)
+        lost = (~self.kept[:, None] & ~self.held).ravel() & (f != 0.0)
+        if lost.any():
+            g = int(np.nonzero(lost)[0][0] // 6)
+            raise ValueError(f"StaticResponse: grain {g} is loaded but is a rattler or not connected to a "
+                             "support (no static response)")
+        if self.lu is None:
+            q, res = np.zeros(0), 0.0
+        else:
+            q, res = refined_solve(self.K, self.lu, self.T.T @ f, tol, max_refine)
+        z = self.T @ q
+        zz = z.reshape(self.net.n, 6)
+        u, theta = zz[:, :3].copy(), zz[:, 3:] / self.scale
+        dF, dTi, dTj, _ = contact_increments(self.sub, u=u, theta=theta)
+        out = {"u": u, "theta": theta, "residual": res}
+        for name, v in (("force", dF), ("torque_i", dTi), ("torque_j", dTj)):
+            full = np.zeros((self.net.n_contacts, 3))
+            full[self.contacts] = v
+            out[name] = full
+        r = (self.H @ z - f).reshape(self.net.n, 6)
+        out["reaction_force"], out["reaction_torque"] = r[:, :3], r[:, 3:] * self.scale
+        return out
+
+
+def contact_network(n, gid_i, gid_j, normal, arm_i, arm_j, radius, volume, e_star, g_star):
+    """The Hertz-Mindlin ``Network`` of a contact table (rows = gids ``0 .. n - 1``): unit normals
+    [nc, 3] i -> j and arms [nc] [m] (``arm_i + arm_j`` = the centre distance, the engine's
+    convention), radii [n] [m], volume [m^3], moduli [Pa] (``hertz_mindlin_branches``)."""
+    d = np.asarray(normal, dtype=float) * (np.asarray(arm_i, dtype=float) + np.asarray(arm_j, dtype=float))[:, None]
+    return hertz_mindlin_branches(n, gid_i, gid_j, d, radius, volume, e_star, g_star)
+
+
+def at_coulomb_limit(normal, force, friction, margin=1e-9):
+    """Mask [nc] of the contacts whose tangential force is at the Coulomb limit: ``|ft| >= (1 -
+    margin) mu fn`` with ``fn = -F . n > 0`` and ``ft = F + fn n`` (``force`` [nc, 3] [N] on i,
+    ``normal`` [nc, 3] i -> j; the kernel caps ``|ft|`` at ``mu fn`` exactly, to round-off)."""
+    n = np.asarray(normal, dtype=float)
+    F = np.asarray(force, dtype=float)
+    fn = -np.einsum("ij,ij->i", F, n)
+    ft = F + fn[:, None] * n
+    return (fn > 0.0) & (np.sqrt(np.einsum("ij,ij->i", ft, ft)) >= (1.0 - margin) * float(friction) * fn)
+
+
+def pair_keys(gid_i, gid_j):
+    """int64 keys [nc] of gid pairs (``gid_i < gid_j < 2^31``)."""
+    return np.asarray(gid_i, dtype=np.int64) * (np.int64(1) << np.int64(31)) + np.asarray(gid_j, dtype=np.int64)
+
+
+def state_changes(reference, current, friction):
+    """Contacts that changed state between two contact tables (dicts with ``gid_i``, ``gid_j``
+    [nc], ``normal`` [nc, 3], ``force`` [nc, 3] [N] on i): ``opened`` (in the reference, not
+    touching now), ``closed`` (touching now only), ``at_limit_reference``, ``at_limit_current``
+    (at the Coulomb limit ``friction``, ``at_coulomb_limit``) and ``new_at_limit`` (at it now, not
+    in the reference), counts; and ``new_at_limit_keys`` (``pair_keys``) of the last."""
+    k0 = pair_keys(reference["gid_i"], reference["gid_j"])
+    k1 = pair_keys(current["gid_i"], current["gid_j"])
+    l0 = at_coulomb_limit(reference["normal"], reference["force"], friction)
+    l1 = at_coulomb_limit(current["normal"], current["force"], friction)
+    new = np.setdiff1d(k1[l1], k0[l0])
+    return {"opened": int(np.setdiff1d(k0, k1).size), "closed": int(np.setdiff1d(k1, k0).size),
+            "at_limit_reference": int(l0.sum()), "at_limit_current": int(l1.sum()),
+            "new_at_limit": int(new.size), "new_at_limit_keys": new}

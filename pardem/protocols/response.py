@@ -78,6 +78,15 @@ the periodic images of the load, averaged over the same x bins) and for an elast
 packing's height below the load on a rigid base (``pardem.physics.flamant.layer_sigma_zz``,
 Fourier series, 2D Poisson ratio ``comparison.poisson``). The bottom row, a rigid or fixed top row
 and the loaded grain are left out of the bins.
+
+Beside the relaxation, each load point's record has ``linear``: the static linear response of the
+reference network (``static_linear``: ``pardem.physics.linear_response.StaticResponse``, no
+sliding, no opening, under the supports of step 3, ``boundary_conditions``) measured by the same
+code (``linear_measure``: the same bins and widths), and ``contact_changes``: the contacts that
+opened, closed or slid in the load step, counts [1] (``contact_changes``; the Coulomb limit is
+sampled at every relaxation check of the static stage and at the dynamic snapshots, so ``slid``
+is a lower bound). With several load points ``static.linear`` is the average of the points'
+linear profiles and ``static.contact_changes`` the sums.
 """
 import json
 import math
@@ -93,6 +102,8 @@ from pardem.engine.system import set_contact_params
 from pardem.engine.replicate import replicate
 from pardem.parallel.exact_sum import exact_sum
 from pardem.physics import flamant
+from pardem.physics import hertz_mindlin
+from pardem.physics import linear_response as lr
 from pardem.physics import response as rsp
 from pardem.physics.contact_frame import pair_geometry
 from pardem.physics.timestep import rayleigh_time_step
@@ -359,6 +370,7 @@ class Layer:
         self.records = None      # rank 0: the dynamic responses measured so far (list of dicts)
         self.points = None       # rank 0: the static responses of the load points done (list of dicts)
         self.last_per_grain = None   # rank 0: the last static response per grain (``measure``'s)
+        self.limit_keys = None   # rank 0: pair keys of the contacts seen at the Coulomb limit in the load step
 
     @property
     def sim(self):
@@ -519,6 +531,8 @@ def response_arrays(layer):
         out["records_json"] = np.frombuffer(json.dumps(layer.records).encode(), dtype=np.uint8)
     if layer.points:
         out["points_json"] = np.frombuffer(json.dumps(layer.points).encode(), dtype=np.uint8)
+    if layer.limit_keys is not None and len(layer.limit_keys):
+        out["limit_keys"] = np.asarray(layer.limit_keys, np.int64)
     return out
 
 
@@ -536,6 +550,8 @@ def restore_response(layer, series):
         layer.records = json.loads(bytes(np.asarray(series["records_json"], np.uint8)).decode())
     if "points_json" in series:
         layer.points = json.loads(bytes(np.asarray(series["points_json"], np.uint8)).decode())
+    if "limit_keys" in series:
+        layer.limit_keys = np.asarray(series["limit_keys"], np.int64)
 
 
 def wave_speed(layer):
@@ -737,7 +753,7 @@ def profile_measures(sigma, counts, x_edges, z_edges, F, t, Lx, H, poisson):
 
 POINT_KEYS = ("loaded_gid", "loaded_position", "dsigma_yy", "grains_per_bin", "transmitted_over_F",
               "width_second_moment", "width_half_max", "max_displacement", "reference", "static", "bottom_share",
-              "top_share")
+              "top_share", "contact_changes", "linear")
 POINT_BINS = ("x_edges", "z_edges", "force")
 
 
@@ -762,6 +778,123 @@ def average_points(points, geometry, poisson):
                            points[0]["force"], geometry["thickness"], geometry["length"][0], H, poisson)
     out.update(dsigma_yy_sem=sem.tolist(), points=K)
     return out
+
+
+# ---------------------------------------------------------------------------------------------
+# the static linear response of the reference network (``pardem.physics.linear_response``)
+
+def boundary_conditions(layer):
+    """``(held [n, 6], ties)`` of ``linear_response.StaticResponse``: the supports of the
+    relaxations (step 3): every grain in the plane (u_z, theta_x, theta_y held); the bottom row
+    clamped; the top row clamped (``"fixed"``), or x and the rotations held with y free under its
+    constant dead load (``"free"``: a dead load adds no stiffness) or y tied into one rigid row
+    under its constant force (``"rigid"``)."""
+    n = layer.geometry["n_grains"]
+    held = np.zeros((n, 6), dtype=bool)
+    held[:, list(lr.PLANE_HELD)] = True
+    held[layer.bottom] = True
+    ties = []
+    if isinstance(layer.top_fix, fx.Clamp):
+        held[layer.top] = True
+    else:
+        held[layer.top, 0] = True
+        held[layer.top, 3:] = True
+        if isinstance(layer.top_fix, RigidRow):
+            ties.append((np.asarray(layer.top, np.int64), 1))
+    return held, ties
+
+
+def reference_network(layer, ref, deck):
+    """The Hertz-Mindlin ``Network`` (rows = gids) of the gathered reference state ``ref``."""
+    g = layer.geometry
+    mat = deck["material"]
+    e_star, g_star = hertz_mindlin.effective_moduli(stages.young_modulus(mat), mat["poisson"])
+    c = ref["contacts"]
+    volume = g["length"][0] * g["length"][1] * g["thickness"]
+    return lr.contact_network(g["n_grains"], c["gid_i"], c["gid_j"], c["normal"], c["arm_i"], c["arm_j"],
+                              ref["radius"], volume, e_star, g_star)
+
+
+def static_linear(layer, ref, deck, force=None, torque=None, solver=None):
+    """Rank 0: the static linear response of the reference state ``ref`` (``gather_state``) under
+    the relaxations' supports (``boundary_conditions``) to the loads ``force`` [n, 3] [N] and
+    ``torque`` [n, 3] [N m] by gid (default: the layer's load ``(0, -F, 0)`` on its loaded grain):
+    ``StaticResponse.solve``'s dict (``u``, ``theta``, contact ``force`` changes in the order of
+    ``ref["contacts"]``, reactions, residual), and ``solver`` (the factorised ``StaticResponse``,
+    reusable by passing it back)."""
+    n = layer.geometry["n_grains"]
+    if force is None:
+        force = np.zeros((n, 3))
+        force[layer.loaded_gid, 1] = -layer.force
+    if solver is None:
+        held, ties = boundary_conditions(layer)
+        solver = lr.StaticResponse(reference_network(layer, ref, deck), held, ties)
+    out = solver.solve(force, torque)
+    c = ref["contacts"]
+    if solver.net.n_contacts != len(c["gid_i"]):
+        # a contact whose overlap rounds to zero from its arms is left out of the network (no force,
+        # no stiffness): the changes go back to the table's rows (sorted by gid pair, as the keys)
+        idx = np.searchsorted(lr.pair_keys(c["gid_i"], c["gid_j"]), lr.pair_keys(solver.net.i, solver.net.j))
+        for k in ("force", "torque_i", "torque_j"):
+            full = np.zeros((len(c["gid_i"]), 3))
+            full[idx] = out[k]
+            out[k] = full
+    out["solver"] = solver
+    return out
+
+
+def linear_state(ref, linear):
+    """The state (``gather_state``'s form) of the reference ``ref`` moved by the static linear
+    response ``linear``: contact forces plus their changes, centres plus ``u``; the reference's
+    normals and arms (``measure`` reads the reference's)."""
+    c = dict(ref["contacts"])
+    c["force"] = np.asarray(c["force"]) + linear["force"]
+    return {"contacts": c, "x": ref["x"] + linear["u"], "radius": ref["radius"]}
+
+
+def linear_measure(layer, ref, deck, linear=None):
+    """Rank 0: the static linear response measured as the relaxed one (``measure`` of
+    ``linear_state``: the same bins, profile and widths), with the solve's ``residual``, the
+    backbone's grains and contacts, and ``force`` [N]."""
+    linear = static_linear(layer, ref, deck) if linear is None else linear
+    out = measure(layer, ref, linear_state(ref, linear), deck)
+    out.pop("per_grain", None)
+    sv = linear["solver"]
+    out.update(residual=linear["residual"], backbone_grains=int(sv.kept.sum()),
+               backbone_contacts=int(sv.contacts.sum()), force=layer.force)
+    return out
+
+
+def sample_limit(layer, friction):
+    """Collect (rank 0, ``layer.limit_keys``) the pair keys of the contacts at the Coulomb limit
+    now (``linear_response.at_coulomb_limit``). Collective."""
+    sim = layer.sim
+    c = contact_table(sim)
+    lim = lr.at_coulomb_limit(c["normal"], c["force"], friction)
+    gi, gj = c["gid_i"][lim], c["gid_j"][lim]
+    keys = lr.pair_keys(np.minimum(gi, gj), np.maximum(gi, gj))
+    parts = sim.comm.gather(keys)
+    if sim.comm.is_root:
+        layer.limit_keys = np.union1d(np.zeros(0, np.int64) if layer.limit_keys is None else layer.limit_keys,
+                                      np.concatenate(parts))
+
+
+def contact_changes(layer, ref, cur, deck):
+    """Rank 0: the contacts that changed state in the load step, counts [1]: ``opened`` (touching
+    in the reference, not in the loaded state), ``closed`` (the reverse), ``slid`` (at the Coulomb
+    limit in the loaded state or at a sampled time of the load step, the relaxation checks every
+    ``relax.check_every`` steps and the dynamic snapshots, and not in the reference: a lower bound,
+    a contact may slide and unload between samples), ``at_coulomb_limit_reference``,
+    ``at_coulomb_limit_loaded``."""
+    friction = deck["load"]["friction"]
+    ch = lr.state_changes(ref["contacts"], cur["contacts"], friction)
+    c0 = ref["contacts"]
+    k0 = lr.pair_keys(c0["gid_i"], c0["gid_j"])[lr.at_coulomb_limit(c0["normal"], c0["force"], friction)]
+    seen = np.union1d(ch["new_at_limit_keys"], np.zeros(0, np.int64) if layer.limit_keys is None
+                      else np.setdiff1d(layer.limit_keys, k0))
+    return {"opened": ch["opened"], "closed": ch["closed"], "slid": int(seen.size),
+            "at_coulomb_limit_reference": ch["at_limit_reference"], "at_coulomb_limit_loaded": ch["at_limit_current"],
+            "sampled_every_steps": deck["relax"]["check_every"]}
 
 
 def per_grain_stress(dM_yy, radius, thickness, solid_fraction):
@@ -818,6 +951,8 @@ def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=No
                "unbalanced": b["unbalanced"], "kinetic": b["kinetic"], "top_force": top, "bottom_force": bottom}
         if on_row is not None:
             on_row(row)
+        if st["stage"] == "static":          # the load step's relaxation: sample the Coulomb limit
+            sample_limit(layer, deck["load"]["friction"])
 
     def enter(name):
         if clock is not None:
@@ -850,6 +985,7 @@ def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=No
                 st["force"] = deck["load"]["fraction"] * b["mean_contact_force"]
             F = st["force"]          # the same force at every point
             apply_load(layer, F, loaded_grain(layer, p / K))
+            layer.limit_keys = np.zeros(0, np.int64) if sim.comm.is_root else None
             position = sim.comm.bcast(layer.ref["x"][layer.loaded_gid].tolist() if sim.comm.is_root else None)
             if p == 0:
                 st["loaded_gid"], st["loaded_position"] = layer.loaded_gid, position
@@ -876,6 +1012,11 @@ def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=No
                     end = target if stop is None else min(target, stop)
                     sim.run(end - sim.step_count, list(operations))
                 cur = gather_state(sim)
+                if cur is not None:
+                    cc = cur["contacts"]
+                    lim = lr.at_coulomb_limit(cc["normal"], cc["force"], deck["load"]["friction"])
+                    layer.limit_keys = np.union1d(np.zeros(0, np.int64) if layer.limit_keys is None
+                                                  else layer.limit_keys, lr.pair_keys(cc["gid_i"][lim], cc["gid_j"][lim]))
                 res = measure(layer, layer.ref, cur, deck)
                 if res is not None:
                     res.update(time_after_load=sim.time - st["t_load"], time_over_transit=tau, step=sim.step_count)
@@ -921,6 +1062,10 @@ def respond(layer, deck, progress=None, operations=(), on_row=None, on_record=No
                       steps=int(sum(q["static"]["steps"] for q in points)),
                       unbalanced=max(q["static"]["unbalanced"] for q in points),
                       kinetic=max(q["static"]["kinetic"] for q in points))
+        static["linear"] = average_points([q["linear"] for q in points], layer.geometry, deck["comparison"]["poisson"])
+        static["contact_changes"] = {k: int(sum(q["contact_changes"][k] for q in points))
+                                     for k in points[0]["contact_changes"] if k != "sampled_every_steps"}
+        static["contact_changes"]["sampled_every_steps"] = deck["relax"]["check_every"]
     out = {"force": F, "loaded_gid": st["loaded_gid"], "loaded_position": st["loaded_position"],
            "wave_speed": c, "height": H, "transit_time": transit, "damping": layer.damping,
            "force_tolerance": relax_tolerance(deck, layer.geometry["n_grains"]),
@@ -951,10 +1096,13 @@ def _point_record(layer, deck, st, on_record, label):
     layer.last_per_grain = res.pop("per_grain")
     F = st["force"]
     res.update(reference=st["point_reference"], static=st["static"], force=F,
-               top_share=-(top1 - st["top0"]) / F, bottom_share=-(bottom1 - st["bottom0"]) / F)
+               top_share=-(top1 - st["top0"]) / F, bottom_share=-(bottom1 - st["bottom0"]) / F,
+               contact_changes=contact_changes(layer, layer.ref, cur, deck),
+               linear=linear_measure(layer, layer.ref, deck))
     return res
 
 
 __all__ = ["SCHEMA", "RUN_STAGES", "RigidRow", "Layer", "prepared", "make_layer", "respond", "measure", "gather_state",
            "contact_table", "apply_load", "relax_layer", "wave_speed", "iso_deck", "SERIES_COLUMNS", "new_state",
-           "layer_state", "restore_layer", "response_arrays", "restore_response"]
+           "layer_state", "restore_layer", "response_arrays", "restore_response", "boundary_conditions",
+           "reference_network", "static_linear", "linear_state", "linear_measure", "sample_limit", "contact_changes"]
