@@ -150,7 +150,7 @@ def crossing_sums(layer, ref, lin, y_cut):
     """Vertical force change [N] the contacts crossing ``y = y_cut`` exert on their upper grain."""
     c = ref["contacts"]
     y = ref["x"][:, 1]
-    gi, gj = c["gid_i"], c["gid_j"]
+    gi = c["gid_i"]
     # the branch vector (periodic along x only) gives the partner's height
     yj = y[gi] + c["normal"][:, 1] * (c["arm_i"] + c["arm_j"])
     up_i = (y[gi] > y_cut) & (yj < y_cut)
