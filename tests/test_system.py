@@ -145,6 +145,15 @@ def test_a_bond_section_outside_the_float_range_is_refused(comm, ratio):
         pardem.build(comm, system)
 
 
+@pytest.mark.parametrize("radius, density", [(1e-110, 1e3), (1e-70, 1e3), (1e100, 1e3), (1e-3, 1e-300)])
+def test_a_mass_or_inertia_outside_the_float_range_is_refused(comm, radius, density):
+    """r^3 (mass) or r^5 (inertia) underflows to 0 or overflows: the kicks would divide by them."""
+    system = pardem.System(pardem.Particles([[0.0, 0.0, 0.0]], radius, density),
+                           integration=pardem.Integration(dt=1e-6))
+    with pytest.raises(ValueError, match="radii and density give element 0 a mass of .* both must be finite and normal"):
+        pardem.build(comm, system)
+
+
 def test_a_row_blown_to_nan_stops_the_run_as_unstable(comm):
     """A non-finite position met by the contact list's rebuild is an instability (exit code and
     last good checkpoint), not a ValueError from the binning."""

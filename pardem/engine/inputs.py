@@ -281,6 +281,22 @@ def check_overlaps(positions, radii, pairs=None, box_lo=None, box_length=None, p
     return x
 
 
+def check_mass(radii, density):
+    """Mass ``4/3 pi rho r^3`` [kg] and moment of inertia ``0.4 m r^2`` [kg m^2] of each element
+    finite and at least the smallest normal float (tiny radii underflow them to 0, huge ones overflow: the steps would divide by
+    them)."""
+    with np.errstate(over="ignore", under="ignore"):
+        mass = np.asarray(density) * 4.0 / 3.0 * np.pi * np.asarray(radii) ** 3
+        inertia = 0.4 * mass * np.asarray(radii) ** 2
+    tiny = np.finfo(np.float64).tiny      # below it, 1 / m overflows (subnormal or zero)
+    bad = np.nonzero(~(np.isfinite(inertia) & (inertia >= tiny) & np.isfinite(mass) & (mass >= tiny)))[0]
+    if len(bad):
+        k = int(bad[0])
+        raise ValueError(f"radii and density give element {k} a mass of {float(np.ravel(mass)[k]):g} kg and a "
+                         f"moment of inertia of {float(np.ravel(inertia)[k]):g} kg m^2: both must be finite and normal numbers "
+                         "(SI units: radii [m], density [kg/m^3])")
+
+
 def check_arrays(positions, radii, density, pairs, dimension=3, box_lo=None, box_length=None,
                  periodic=(True, True, True)):
     """``(x [n, 3], r [n], pairs [b, 2])`` checked (``check_positions``, ``check_radii``,
@@ -290,11 +306,12 @@ def check_arrays(positions, radii, density, pairs, dimension=3, box_lo=None, box
     x = check_positions(positions, dimension)
     n = len(x)
     r = check_radii(radii, n)
-    check_density(density, n)
+    rho = check_density(density, n)
+    check_mass(r, rho)
     p = check_pairs(pairs, n)
     check_overlaps(x, r, p, box_lo=box_lo, box_length=box_length, periodic=periodic)
     return x, r, p
 
 
 __all__ = ["COINCIDENT", "MAX_OVERLAP", "check_positions", "check_radii", "check_density", "check_vectors",
-           "check_pairs", "check_frame", "check_viscous_damping", "check_overlaps", "check_arrays"]
+           "check_mass", "check_pairs", "check_frame", "check_viscous_damping", "check_overlaps", "check_arrays"]

@@ -501,6 +501,7 @@ def _particle_arrays(p, dim):
     if not np.isscalar(density):
         raise ValueError("Particles.density must be one number [kg/m^3] for the system (one per particle is "
                          "not supported yet)")
+    inputs.check_mass(r, density)
     return x, r, float(density)
 
 
