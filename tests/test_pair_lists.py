@@ -19,7 +19,8 @@ from pardem.engine import contacts as contacts_mod
 from pardem.engine.contacts import lookup, pair_keys
 from pardem.engine.system import Cell, ContactModel, Decomposition, Integration, Particles, System, build
 from pardem.parallel.communicator import Communicator
-from pardem.physics.pair_lists import carry_history, order_by_key, shift_metres_into
+from pardem.physics.pair_lists import (carry_history, crossing_rows, order_by_key, shift_metres_into,
+                                       shift_metres_rows)
 
 
 def random_pairs(rng, n_rows, n_pairs, gid):
@@ -79,6 +80,40 @@ def test_shift_metres_into_is_numpy_product():
     shift_metres_into(shifts, period, out)
     assert out.tobytes() == (shifts * period).tobytes()
 
+
+
+def test_shift_metres_rows_of_the_crossing_rows_is_the_full_product():
+    """Rewriting only the rows with a non-zero image gives the array of the full product for
+    every new period (a zero image is +0.0 whatever the period)."""
+    rng = np.random.default_rng(4)
+    shifts = (rng.integers(-1, 2, (1000, 3)) * (rng.random((1000, 1)) < 0.2)).astype(np.int8)
+    rows = crossing_rows(shifts)
+    assert 0 < len(rows) < 400
+    out = np.empty((1000, 3))
+    shift_metres_into(shifts, np.array([1e-3, 2e-3, 0.0]), out)
+    period = np.array([1.2345678901e-3, 2.5e-3, 0.0])
+    shift_metres_rows(shifts, period, rows, out)
+    assert out.tobytes() == (shifts * period).tobytes()
+
+
+@pytest.mark.parametrize("sort", [False, True])
+def test_deforming_cell_shifts_are_those_of_the_current_period(monkeypatch, sort):
+    """In a deforming cell the list's shifts in metres (list order, and the computing order of
+    sorted rows) are rewritten each step on the pairs across a boundary only: after a run with
+    rebuilds they equal the full product with the current period, bit for bit."""
+    if sort:
+        monkeypatch.setattr(contacts_mod, "SORT_MIN_ROWS", 0)
+    sim = build(Communicator(), sheared_packing())
+    sim.run(120)
+    c = sim.contacts
+    assert c.builds > 2 and len(crossing_rows(c.shifts)) > 0
+    want = np.empty_like(c.shift)
+    shift_metres_into(c.shifts, c.shift_period(), want)
+    assert c.shift.tobytes() == want.tobytes()
+    if sort:
+        shifts_c, shift_c = c._order[7], c._order[3]
+        shift_metres_into(shifts_c, c.shift_period(), want)
+        assert shift_c.tobytes() == want.tobytes()
 
 def sheared_packing():
     """A dense polydisperse packing (jittered lattice, radii +-20 %, overlapping) in a periodic
