@@ -132,18 +132,21 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     ranks; ``acc`` then gets the contact count only, and the loop returns 0, or NaN when a term
     was not finite.
 
-    Blocked (issue 14): the pairs go by blocks of ``BLOCK``: a gather pass copies each pair's
-    inputs (branch vector, radii, ``v_i - v_j``, ``w_i``, ``w_j``, history row, masses) into
-    block arrays (the values of row ``i`` read once per run of pairs with the same ``i``: 0.8 ns
-    per pair, 2026-12-06), a pass with no indirect access runs the law over the block (LLVM vectorises it:
-    four pairs per AVX2 instruction, so the long chain of square roots and divisions of one pair
-    no longer bounds the loop), and a scatter pass adds the loads in pair order. The scatter keeps
-    the i-side load of a run of pairs with the same ``i`` in registers (loaded once, stored when
-    ``i`` changes): the additions are the same, in the same order, since no other pair of the
-    run touches row ``i`` (a pair with ``j == i``, a self image, flushes first). Every value is
-    computed by the same operations as the one-pair kernel of ``all_pairs_loop`` and ``single``,
-    and the loads, sums and energy are added in the same order, so the results are the same bits
-    (``tests/test_contacts.py`` compares them); 1.5x faster than one pair at a time on GRAN.
+    Blocked (issue 14): the pairs go by blocks of ``BLOCK``: a gather pass copies the inputs
+    (branch vector, radii, ``v_i - v_j``, ``w_i``, ``w_j``, history row, masses) of the block's
+    engaged pairs, packed in their order into the first slots of block arrays (every pair fills
+    the next free slot, which only an engaged pair keeps: no branch; the values of row ``i`` read
+    once per run of pairs with the same ``i``; the history columns 0:3 of every pair cleared, an
+    engaged pair's row is written back after the law), a pass with no indirect access and no
+    branch on contact runs the law over the packed slots (LLVM vectorises it: four pairs per AVX2
+    instruction, so the long chain of square roots and divisions of one pair no longer bounds the
+    loop; most listed pairs of a dense packing touch, but a third or so do not, and they cost no
+    law arithmetic), and a scatter pass adds the loads in pair order to both rows in memory (row
+    ``i`` is in the cache; keeping a run's i-side in registers needs a test per pair that
+    mispredicts when runs are short; measured in ``benchmarks/results/gran_shear.md``).
+    Every value is computed by the same operations as the one-pair kernel of ``all_pairs_loop``
+    and ``single``, and the loads, sums and energy are added in the same order, so the results
+    are the same bits (``tests/test_contacts.py`` compares them).
     ``ordered``: the pairs are computed in another order than the list's, and their loads added
     by ``pair_loads.add_in_order`` afterwards in the list's order (so the bits are those of the
     one-pass loop): ``i, j, shift`` are then the pairs in computing order, pair q's history row is
