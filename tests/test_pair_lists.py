@@ -20,7 +20,6 @@ from pardem.engine.contacts import lookup, pair_keys
 from pardem.engine.system import Cell, ContactModel, Decomposition, Integration, Particles, System, build
 from pardem.parallel.communicator import Communicator
 from pardem.physics.pair_lists import carry_history, order_by_key, shift_metres_into
-from pardem.physics.pair_lists import crossing_rows, shift_metres_rows
 
 
 def random_pairs(rng, n_rows, n_pairs, gid):
@@ -80,6 +79,8 @@ def test_shift_metres_into_is_numpy_product():
     shift_metres_into(shifts, period, out)
     assert out.tobytes() == (shifts * period).tobytes()
 
+
+from pardem.physics.pair_lists import crossing_rows, shift_metres_rows  # noqa: E402
 
 
 def test_shift_metres_rows_of_the_crossing_rows_is_the_full_product():

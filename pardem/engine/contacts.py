@@ -54,8 +54,8 @@ from pardem.physics.contact_frame import NO_SHIFT
 from pardem.physics.neighbours import VerletList, max_displacement2
 from pardem.physics.pair_lists import (carry_history, compute_order, order_by_key, shift_metres_into,
                                        spatial_order)
-from pardem.physics.pair_lists import crossing_rows, shift_metres_rows
 from pardem.physics.timestep import contact_stiffness
+from pardem.physics.pair_lists import crossing_rows, shift_metres_rows  # noqa: I100
 
 KEY_BASE = np.int64(1) << np.int64(31)
 
