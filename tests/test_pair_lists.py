@@ -80,6 +80,45 @@ def test_shift_metres_into_is_numpy_product():
     assert out.tobytes() == (shifts * period).tobytes()
 
 
+from pardem.physics.pair_lists import crossing_rows, shift_metres_rows  # noqa: E402
+
+
+def test_shift_metres_rows_of_the_crossing_rows_is_the_full_product():
+    """Rewriting only the rows with a non-zero image gives the array of the full product for
+    every new period (a zero image is +0.0 whatever the period)."""
+    rng = np.random.default_rng(4)
+    shifts = (rng.integers(-1, 2, (1000, 3)) * (rng.random((1000, 1)) < 0.2)).astype(np.int8)
+    rows = crossing_rows(shifts)
+    assert 0 < len(rows) < 400
+    out = np.empty((1000, 3))
+    shift_metres_into(shifts, np.array([1e-3, 2e-3, 0.0]), out)
+    period = np.array([1.2345678901e-3, 2.5e-3, 0.0])
+    shift_metres_rows(shifts, period, rows, out)
+    assert out.tobytes() == (shifts * period).tobytes()
+
+
+@pytest.mark.parametrize("sort", [False, True])
+def test_deforming_cell_shifts_are_those_of_the_current_period(monkeypatch, sort):
+    """In a deforming cell the list's shifts in metres (list order, and the computing order of
+    sorted rows) are rewritten each step on the pairs across a boundary only: after a run with
+    rebuilds they equal the full product with the current period, bit for bit."""
+    if sort:
+        monkeypatch.setattr(contacts_mod, "SORT_MIN_ROWS", 0)
+        # sorted whatever the rows' order (where a rank judges whether its rows are scattered)
+        monkeypatch.setattr(contacts_mod, "scattered", lambda *args: True, raising=False)
+    sim = build(Communicator(), sheared_packing())
+    sim.run(120)
+    c = sim.contacts
+    assert c.builds > 2 and len(crossing_rows(c.shifts)) > 0
+    want = np.empty_like(c.shift)
+    shift_metres_into(c.shifts, c.shift_period(), want)
+    assert c.shift.tobytes() == want.tobytes()
+    if sort:
+        assert c._order is not None      # the pairs were computed in the sorted rows' order
+        shifts_c, shift_c = c._order[7], c._order[3]
+        shift_metres_into(shifts_c, c.shift_period(), want)
+        assert shift_c.tobytes() == want.tobytes()
+
 def sheared_packing():
     """A dense polydisperse packing (jittered lattice, radii +-20 %, overlapping) in a periodic
     cell in pure shear at 1e4 1/s, with random velocities and spins."""

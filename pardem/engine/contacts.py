@@ -56,6 +56,7 @@ from pardem.physics.neighbours import VerletList, max_displacement2
 from pardem.physics.pair_lists import (carry_history, compute_order, order_by_key, scattered,
                                        shift_metres_into, spatial_order)
 from pardem.physics.timestep import contact_stiffness
+from pardem.physics.pair_lists import crossing_rows, shift_metres_rows  # noqa: I100
 
 KEY_BASE = np.int64(1) << np.int64(31)
 
@@ -142,6 +143,7 @@ class Contacts:
         self.j = np.zeros(0, np.int32)
         self.shifts = np.zeros((0, 3), np.int8)
         self.shift = None
+        self._crossing = None        # the pairs whose shift is not zero (rewritten each step)
         self.keys = np.zeros(0, np.int64)
         self._hist_c = None          # the history in computing order, when it is the current one
         self.history = np.zeros((0, self.width))
@@ -253,6 +255,7 @@ class Contacts:
         self.keys = np.ascontiguousarray(keys, dtype=np.int64)
         self.history = np.ascontiguousarray(history, dtype=np.float64)
         self.shift = self.cell.shift_metres(self.shifts) if self.periodic else None
+        self._crossing = crossing_rows(self.shifts) if self.periodic else None
         self._order = None
         self.builds += 1
         self.exact_ready = False
@@ -293,7 +296,7 @@ class Contacts:
             shift_metres_into(shifts, self.shift_period(), shift)
         self._order = (order, np.ascontiguousarray(self.i[order]), np.ascontiguousarray(self.j[order]),
                        shift, np.empty((len(order), 12)), inc_start, inc, shifts,
-                       np.arange(len(order), dtype=np.int64))
+                       np.arange(len(order), dtype=np.int64), crossing_rows(shifts))
 
     def shift_period(self):
         """The cell's edges along its periodic axes, 0 along the others [3] [m]."""
@@ -351,10 +354,11 @@ class Contacts:
                     self.shift[...] = self.cell.shift_metres(self.shifts)
                     if self._order is not None and self._order[3] is not None:
                         self._order[3][...] = self.cell.shift_metres(self._order[7])
-                else:                   # in place: the same products as cell.shift_metres
-                    shift_metres_into(self.shifts, self.shift_period(), self.shift)
+                else:                   # in place: the same products as cell.shift_metres, on
+                    period = self.shift_period()    # the rows across a boundary (the others are 0)
+                    shift_metres_rows(self.shifts, period, self._crossing, self.shift)
                     if self._order is not None and self._order[3] is not None:
-                        shift_metres_into(self._order[7], self.shift_period(), self._order[3])
+                        shift_metres_rows(self._order[7], period, self._order[9], self._order[3])
             rate = self.cell.gradient() if self.cell.sheared else self.cell.rate
         self.sums[:] = 0.0
         # exact sums when something may read them: a servo (every step), or an operation (the

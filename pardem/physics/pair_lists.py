@@ -130,6 +130,25 @@ def shift_metres_into(shifts, period, out):
         out[p, 2] = np.float64(shifts[p, 2]) * p2
 
 
+
+@njit(cache=True, error_model="numpy")
+def shift_metres_rows(shifts, period, rows, out):
+    """``shift_metres_into`` for the rows ``rows`` (int64) of ``out`` only: in a cell whose edges
+    change, the rows of the pairs that cross no periodic boundary are zero for every period, so a
+    list's non-zero rows (``crossing_rows``) are all that a step must rewrite."""
+    p0, p1, p2 = period[0], period[1], period[2]
+    for k in range(rows.shape[0]):
+        p = rows[k]
+        out[p, 0] = np.float64(shifts[p, 0]) * p0
+        out[p, 1] = np.float64(shifts[p, 1]) * p1
+        out[p, 2] = np.float64(shifts[p, 2]) * p2
+
+
+def crossing_rows(shifts):
+    """The rows (int64) of ``shifts`` [n, 3] int8 with a non-zero image: the pairs across a
+    periodic boundary."""
+    return np.flatnonzero(np.any(shifts != 0, axis=1)).astype(np.int64)
+
 # -- spatial order of the rows and the compute order of the pairs ---------------------------------
 
 @njit(cache=True, error_model="numpy")

@@ -50,7 +50,7 @@ from pardem.physics.contact_frame import (NO_RATE, NO_SHIFT, add_love_weber, aff
 from pardem.physics.exact_accumulate import NLIMB
 from pardem.physics.exact_accumulate import add as exact_add
 from pardem.physics.exact_accumulate import normalize as exact_normalize
-from pardem.physics.pair_loads import add_in_order, next_run, store_row
+from pardem.physics.pair_loads import add_in_order
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -132,18 +132,21 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     ranks; ``acc`` then gets the contact count only, and the loop returns 0, or NaN when a term
     was not finite.
 
-    Blocked (issue 14): the pairs go by blocks of ``BLOCK``: a gather pass copies each pair's
-    inputs (branch vector, radii, ``v_i - v_j``, ``w_i``, ``w_j``, history row, masses) into
-    block arrays (the values of row ``i`` read once per run of pairs with the same ``i``: 0.8 ns
-    per pair, 2026-12-06), a pass with no indirect access runs the law over the block (LLVM vectorises it:
-    four pairs per AVX2 instruction, so the long chain of square roots and divisions of one pair
-    no longer bounds the loop), and a scatter pass adds the loads in pair order. The scatter keeps
-    the i-side load of a run of pairs with the same ``i`` in registers (loaded once, stored when
-    ``i`` changes): the additions are the same, in the same order, since no other pair of the
-    run touches row ``i`` (a pair with ``j == i``, a self image, flushes first). Every value is
-    computed by the same operations as the one-pair kernel of ``all_pairs_loop`` and ``single``,
-    and the loads, sums and energy are added in the same order, so the results are the same bits
-    (``tests/test_contacts.py`` compares them); 1.5x faster than one pair at a time on GRAN.
+    Blocked (issue 14): the pairs go by blocks of ``BLOCK``: a gather pass copies the inputs
+    (branch vector, radii, ``v_i - v_j``, ``w_i``, ``w_j``, history row, masses) of the block's
+    engaged pairs, packed in their order into the first slots of block arrays (every pair fills
+    the next free slot, which only an engaged pair keeps: no branch; the values of row ``i`` read
+    once per run of pairs with the same ``i``; the history columns 0:3 of every pair cleared, an
+    engaged pair's row is written back after the law), a pass with no indirect access and no
+    branch on contact runs the law over the packed slots (LLVM vectorises it: four pairs per AVX2
+    instruction, so the long chain of square roots and divisions of one pair no longer bounds the
+    loop; most listed pairs of a dense packing touch, but a third or so do not, and they cost no
+    law arithmetic), and a scatter pass adds the loads in pair order to both rows in memory (row
+    ``i`` is in the cache; keeping a run's i-side in registers needs a test per pair that
+    mispredicts when runs are short; measured in ``benchmarks/results/gran_shear.md``).
+    Every value is computed by the same operations as the one-pair kernel of ``all_pairs_loop``
+    and ``single``, and the loads, sums and energy are added in the same order, so the results
+    are the same bits (``tests/test_contacts.py`` compares them).
     ``ordered``: the pairs are computed in another order than the list's, and their loads added
     by ``pair_loads.add_in_order`` afterwards in the list's order (so the bits are those of the
     one-pass loop): ``i, j, shift`` are then the pairs in computing order, pair q's history row is
@@ -188,18 +191,22 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_wid
         if sheared:
             g3, g4, g5 = rate[3], rate[4], rate[5]
         width = WIDTH                # a compile-time constant: the history copies unroll
-        gat = np.empty((14, B))      # per pair: d (3), r_i, r_j, v_i - v_j (3), w_i (3), w_j (3)
-        res = np.empty((11, B))      # per pair: F_i (3), T_i (3), T_j (3), energy, acts
-        hb = np.empty((width, B))    # the block's history rows, one column each
+        gat = np.empty((14, B))      # per slot: d (3), r_i, r_j, v_i - v_j (3), w_i (3), w_j (3)
+        res = np.empty((11, B))      # per slot: F_i (3), T_i (3), T_j (3), energy, acts
+        hb = np.empty((width, B))    # the slots' history rows, one column each
         hT = hb.T                    # [B, width], unit stride along the block
         mb = np.ones(2 * B)          # masses of the i ends, then of the j ends (with_mass)
+        slot = np.empty(B, dtype=np.int64)   # the pair of each slot
         n_pairs = pi.shape[0]
         ci = np.uint64(x.shape[0])   # the row whose values are in xi, rad_i, vi, wi, mass_i
         xi0 = xi1 = xi2 = rad_i = vi0 = vi1 = vi2 = wi0 = wi1 = wi2 = mass_i = 0.0
-        cur = -1                     # the row whose i-side loads are in fi, ti
-        fi0 = fi1 = fi2 = ti0 = ti1 = ti2 = 0.0
         for p0 in range(0, n_pairs, B):
             m = min(B, n_pairs - p0)
+            if ordered:              # a pair acting nothing adds -0.0 (x + (-0.0) == x)
+                for p in range(p0, p0 + m):
+                    for col in range(12):
+                        loads[p, col] = -0.0
+            nt = 0                   # slots filled: the engaged pairs of the block, in order
             for k in range(m):       # gather
                 p = p0 + k
                 hp = order[p] if ordered else p     # the pair's history row
@@ -225,51 +232,58 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_wid
                     if with_mass:
                         mass_i = mass[i]
                 # as contact_frame.pair_separation (exactly antisymmetric grouping)
-                gat[0, k] = (x[j, 0] - xi0) + s0
-                gat[1, k] = (x[j, 1] - xi1) + s1
-                gat[2, k] = (x[j, 2] - xi2) + s2
-                gat[3, k] = rad_i
-                gat[4, k] = radius[j]
-                gat[5, k] = vi0 - v[j, 0]
-                gat[6, k] = vi1 - v[j, 1]
-                gat[7, k] = vi2 - v[j, 2]
-                gat[8, k] = wi0
-                gat[9, k] = wi1
-                gat[10, k] = wi2
-                gat[11, k] = w[j, 0]
-                gat[12, k] = w[j, 1]
-                gat[13, k] = w[j, 2]
+                d0 = (x[j, 0] - xi0) + s0
+                d1 = (x[j, 1] - xi1) + s1
+                d2 = (x[j, 2] - xi2) + s2
+                rad_j = radius[j]
+                # every pair fills slot nt, which only an engaged pair keeps (no branch)
+                gat[0, nt] = d0
+                gat[1, nt] = d1
+                gat[2, nt] = d2
+                gat[3, nt] = rad_i
+                gat[4, nt] = rad_j
+                gat[5, nt] = vi0 - v[j, 0]
+                gat[6, nt] = vi1 - v[j, 1]
+                gat[7, nt] = vi2 - v[j, 2]
+                gat[8, nt] = wi0
+                gat[9, nt] = wi1
+                gat[10, nt] = wi2
+                gat[11, nt] = w[j, 0]
+                gat[12, nt] = w[j, 1]
+                gat[13, nt] = w[j, 2]
                 for col in range(width):
-                    hb[col, k] = hist[hp, col]
+                    hb[col, nt] = hist[hp, col]
                 if with_mass:        # only laws that read masses (damping) pay for them
-                    mb[k] = mass_i
-                    mb[B + k] = mass[j]
-            for k in range(m):       # the law, no indirect access: vectorised
-                d0 = gat[0, k]
+                    mb[nt] = mass_i
+                    mb[B + nt] = mass[j]
+                slot[nt] = p
+                engage = engaged(nt, hT, d0 * d0 + d1 * d1 + d2 * d2, rad_i + rad_j)  # noqa: F821
+                # as clear_history: an engaged pair's row is written back after the law
+                hist[hp, 0] = 0.0
+                hist[hp, 1] = 0.0
+                hist[hp, 2] = 0.0
+                nt += 1 if engage else 0
+            for k in range(nt):      # the law over the engaged pairs, no indirect access, no
+                d0 = gat[0, k]       # branch on contact: vectorised
                 d1 = gat[1, k]
                 d2 = gat[2, k]
                 ri = gat[3, k]
                 rj = gat[4, k]
                 dist2 = d0 * d0 + d1 * d1 + d2 * d2
                 rsum = ri + rj
-                acts = False
-                fn = ft0 = ft1 = ft2 = e = 0.0
                 n0, n1, n2, delta, li, lj = contact_geometry(d0, d1, d2, dist2, ri, rj, rsum)
-                if engaged(k, hT, dist2, rsum):  # noqa: F821
-                    un, ut0, ut1, ut2, spin = _relative_motion(
-                        gat[5, k], gat[6, k], gat[7, k], gat[8, k], gat[9, k], gat[10, k],
-                        gat[11, k], gat[12, k], gat[13, k], n0, n1, n2, li, lj)
-                    if sheared:
-                        un, ut0, ut1, ut2 = shear_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1,
-                                                         n2, g0, g1, g2, g3, g4, g5)
-                    elif deforming:
-                        un, ut0, ut1, ut2 = affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1,
-                                                          n2, g0, g1, g2)
-                    acts, fn, ft0, ft1, ft2, e = forces(k, k, B + k, ri, rj, rsum, delta, n0,  # noqa: F821
-                                                        n1, n2, un, ut0, ut1, ut2, spin, mb, hT,
-                                                        dt, c)
-                else:
-                    clear_history(hT, k)
+                un, ut0, ut1, ut2, spin = _relative_motion(
+                    gat[5, k], gat[6, k], gat[7, k], gat[8, k], gat[9, k], gat[10, k],
+                    gat[11, k], gat[12, k], gat[13, k], n0, n1, n2, li, lj)
+                if sheared:
+                    un, ut0, ut1, ut2 = shear_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1,
+                                                     n2, g0, g1, g2, g3, g4, g5)
+                elif deforming:
+                    un, ut0, ut1, ut2 = affine_motion(un, ut0, ut1, ut2, d0, d1, d2, n0, n1,
+                                                      n2, g0, g1, g2)
+                acts, fn, ft0, ft1, ft2, e = forces(k, k, B + k, ri, rj, rsum, delta, n0,  # noqa: F821
+                                                    n1, n2, un, ut0, ut1, ut2, spin, mb, hT,
+                                                    dt, c)
                 # as contact_frame.write_pair
                 c0 = n1 * ft2 - n2 * ft1
                 c1 = n2 * ft0 - n0 * ft2
@@ -285,50 +299,40 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_wid
                 res[8, k] = lj * c2
                 res[9, k] = e
                 res[10, k] = 1.0 if acts else 0.0
-            for k in range(m):       # scatter, in pair order
-                p = p0 + k
+            for k in range(nt):      # the engaged pairs' history rows back
+                p = slot[k]
                 hp = order[p] if ordered else p
                 for col in range(width):
                     hist[hp, col] = hb[col, k]
-                if ordered:          # the loads are added later, in the list's order
-                    if res[10, k] != 0.0:
-                        for col in range(3):
-                            loads[p, col] = res[col, k]          # +F_i on i
-                            loads[p, 3 + col] = res[3 + col, k]  # T_i
-                            loads[p, 6 + col] = -res[col, k]     # x - F == x + (-F), bitwise
-                            loads[p, 9 + col] = res[6 + col, k]  # T_j
-                    else:                # x + (-0.0) == x for every x: a pair acting nothing
-                        for col in range(12):
-                            loads[p, col] = -0.0
+            for k in range(nt):      # scatter, in pair order
                 if res[10, k] == 0.0:
                     continue
+                p = slot[k]
                 i = pi[p]
-                j = pj[p]
                 o0 = res[0, k]
                 o1 = res[1, k]
                 o2 = res[2, k]
-                if not ordered:      # the i-side of a run in registers, the j-side in memory
-                    if i != cur:         # a new run: store the last one's i-side, load this one's
-                        cur, fi0, fi1, fi2, ti0, ti1, ti2 = next_run(f, t, cur, i, fi0, fi1, fi2, ti0,
-                                                                     ti1, ti2)
-                    if j == cur:         # a self image (tiny periodic cell): both ends in memory
-                        store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
-                        cur = -1
-                        scatter_pair(i, j, f, t, res[:9, k])
-                    else:                # as pair_loads.scatter_pair, the i-side in registers
-                        fi0 += o0
-                        fi1 += o1
-                        fi2 += o2
-                        ju = np.uint64(j)
-                        f[ju, 0] -= o0
-                        f[ju, 1] -= o1
-                        f[ju, 2] -= o2
-                        ti0 += res[3, k]
-                        ti1 += res[4, k]
-                        ti2 += res[5, k]
-                        t[ju, 0] += res[6, k]
-                        t[ju, 1] += res[7, k]
-                        t[ju, 2] += res[8, k]
+                if ordered:          # the loads are added later, in the list's order
+                    for col in range(3):
+                        loads[p, col] = res[col, k]          # +F_i on i
+                        loads[p, 3 + col] = res[3 + col, k]  # T_i
+                        loads[p, 6 + col] = -res[col, k]     # x - F == x + (-F), bitwise
+                        loads[p, 9 + col] = res[6 + col, k]  # T_j
+                else:                # as pair_loads.scatter_pair (row i in the cache: no run
+                    iu = np.uint64(i)    # kept in registers, whose test mispredicts)
+                    ju = np.uint64(pj[p])
+                    f[iu, 0] += o0
+                    f[iu, 1] += o1
+                    f[iu, 2] += o2
+                    f[ju, 0] -= o0
+                    f[ju, 1] -= o1
+                    f[ju, 2] -= o2
+                    t[iu, 0] += res[3, k]
+                    t[iu, 1] += res[4, k]
+                    t[iu, 2] += res[5, k]
+                    t[ju, 0] += res[6, k]
+                    t[ju, 1] += res[7, k]
+                    t[ju, 2] += res[8, k]
                 if i < n_owned:   # counted once over the ranks (the owner of the lower gid)
                     b0 = gat[0, k]
                     b1 = gat[1, k]
@@ -360,8 +364,6 @@ def _list_loop(periodic, deforming, with_energy, exact, with_stress, history_wid
                     a20 += b2 * o0
                     a21 += b2 * o1
                     a22 += b2 * o2
-        if cur >= 0:         # (never when ordered)
-            store_row(f, t, cur, fi0, fi1, fi2, ti0, ti1, ti2)
         add_love_weber(acc, a00, a01, a02, a10, a11, a12, a20, a21, a22, count)
         if exact:
             exact_normalize(xacc)  # noqa: F821
