@@ -37,7 +37,7 @@ Ranks with fewer than ``SORT_MIN_ROWS`` owned rows do not sort (``sorting``), no
 rows are stored in a local order already (``scattered``, judged at list builds). ``Simulation``
 turns it off with plates or walls (their forces are summed in row order).
 
-Reproducible runs (``reproducible``, issue 16 item 8: the same bits on any number of ranks): the
+Reproducible runs (``reproducible``: the same bits on any number of ranks): the
 list is ordered by pair key (lower gid, then higher gid) at every build, so that each element
 adds its contact forces in an order fixed by the gids alone (pairs ``(a, k)`` by ``a``, then
 ``(k, b)`` by ``b``), whatever the rank's rows and cell grid; every pair is computed with its
@@ -71,8 +71,8 @@ REPRODUCIBLE = True
 
 # default of ``Contacts.sort_rows`` for reproducible lists (module docstring, "Spatial order"), and
 # the fewest owned rows a rank sorts: below, the rows stay in the caches whatever their order and
-# the second pass costs more than locality gains (GRAN-SHEAR, one rank, CPU time, loaded
-# machine: 8,000 grains 12 % slower a step, 64,000 grains 17 % faster)
+# the second pass costs more than locality gains (measured on GRAN-SHEAR at 8,000 and 64,000
+# grains: docs/performance.md)
 SORT_ROWS = True
 SORT_MIN_ROWS = 30000
 # a rank that does not sort judges again whether its rows are scattered every this many list builds
@@ -158,7 +158,7 @@ class Contacts:
                               and "order" in inspect.signature(law.compute).parameters)
         # whether this rank's rows are stored scattered (``pair_lists.scattered``; None: not judged
         # yet): only then does sorting pay (rows already in a local order, as a lattice built axis
-        # by axis, run 17 % slower a step sorted: GRAN at 64,000 grains)
+        # by axis, run slower sorted: GRAN, docs/performance.md)
         self.scattered = None
         if cell is not None and cell.deforming and not self.cut > 0.0:
             raise ValueError("Contacts in a deforming cell need reach = 2 R_max + skin (> 0): it "

@@ -1,4 +1,4 @@
-"""The flexible lateral membranes of a 2D biaxial test as a load fix (issue 13, item 3).
+"""The flexible lateral membranes of a 2D biaxial test as a load fix.
 
 ``MembraneLoad`` (stage ``LOAD`` of ``pardem.engine.fixes``) keeps one chain per lateral side
 (``pardem.physics.membrane.walk``: the outermost grains, from a bottom-platen grain to a

@@ -5,8 +5,8 @@ the caller's own fields, at most every ``seconds`` (and always for the last step
 that of the steps since the previous line (the first line: since the first call, never from the
 run's start: the first step of a run compiles the Numba kernels, seconds, and would make the
 first ETA absurd). A rate over the whole run would lag when the cost of a step changes (the
-biaxial and response drivers prepare 10,000 grains, then step 90,000 copies: measured 2026-12-04,
-the cumulative rate then said 187 steps/s where the loading ran 53); ``start(step)`` restarts
+biaxial and response drivers prepare 10,000 grains, then step 90,000 copies: a cumulative rate
+said 187 steps/s where the loading ran 53); ``start(step)`` restarts
 the measure at a change of stage.
 
 It is an operation (``trigger = Periodic(1)``: after every step; ``__call__(sim)``) and also a

@@ -1,4 +1,4 @@
-"""Reproducible global sums: the same bits on any number of ranks (issue 16, item 8).
+"""Reproducible global sums: the same bits on any number of ranks.
 
 Each rank adds its terms exactly into integer accumulators (``pardem.physics.exact_accumulate``);
 the canonical limbs (each below 2^32) are summed over the ranks with one float64 ``MPI_SUM``

@@ -27,7 +27,7 @@ Contacts: at a rebuild the contact history table (pairs with a non-zero history,
 end gids) travels with the migrating elements like the bonds do, then the contact list is rebuilt
 on the new rows (``pardem.engine.contacts``).
 
-Reproducible runs (``Contacts.reproducible``; issue 16 item 8): the load balance is checked only
+Reproducible runs (``Contacts.reproducible``): the load balance is checked only
 at the rebuilds the displacement criterion asks for (at least ``balance_every`` steps apart), never
 forcing a rebuild of its own, so that lists are rebuilt (and positions wrapped) at the same steps on
 any number of ranks.

@@ -1,5 +1,5 @@
 """Local strain of a granular assembly: the least-squares displacement gradient of each grain's
-neighbourhood (issue 13, item 3: localisation).
+neighbourhood (localisation).
 
 For grain i with neighbours j (pairs within a distance, or contacts) and reference branch vectors
 ``b_ij = x_j - x_i`` (periodic images resolved by the caller) and relative displacements

@@ -1,4 +1,4 @@
-"""Flexible membrane of a 2D biaxial test (issue 13, item 3): a chain of the outermost grains of
+"""Flexible membrane of a 2D biaxial test: a chain of the outermost grains of
 one lateral side, loaded by the confining pressure.
 
 Construction (``walk``, the one chain walk; ``chain`` is its strict form): from the outermost

@@ -81,7 +81,7 @@ def _pair(forces, engaged, deforming):
     return pair
 
 
-BLOCK = 64   # pairs per block of the neighbour-list loop (64 to 128 measured best, issue 14)
+BLOCK = 64   # pairs per block of the neighbour-list loop (64 to 128 measured best)
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -117,11 +117,11 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
 
     ``history_width``: the columns of ``history``, compiled in as a constant (the history copies
     then unroll; with unsigned row indices, which need no negative-index wrap-around per access:
-    10 % off the loop alone and 6 % off a GRAN step, n = 40, 2026-12-05).
+    10 % off the loop alone and 6 % off a GRAN step at n = 40).
 
     ``with_mass``: gather the masses of both ends for the law (``forces`` reads ``mass[i]``,
     ``mass[j]``); a law that never reads them (no damping) is compiled with False, and then sees
-    ones (a fifth of the gather pass: 1.3 ns of 28 ns per pair, GRAN n = 40, 2026-12-06).
+    ones (a fifth of the gather pass: 1.3 ns of 28 ns per pair, GRAN n = 40).
 
     ``with_stress``: add the nine Love-Weber sums to ``acc`` (else only the contact count: the
     steps nothing reads the stress on skip their arithmetic, LAMMPS' vflag; implied by ``exact``).
@@ -132,7 +132,7 @@ def pair_loop(forces, engaged, periodic, deforming=False, with_energy=True, exac
     ranks; ``acc`` then gets the contact count only, and the loop returns 0, or NaN when a term
     was not finite.
 
-    Blocked (issue 14): the pairs go by blocks of ``BLOCK``: a gather pass copies the inputs
+    Blocked: the pairs go by blocks of ``BLOCK``: a gather pass copies the inputs
     (branch vector, radii, ``v_i - v_j``, ``w_i``, ``w_j``, history row, masses) of the block's
     engaged pairs, packed in their order into the first slots of block arrays (every pair fills
     the next free slot, which only an engaged pair keeps: no branch; the values of row ``i`` read

@@ -1,5 +1,5 @@
 """Shear band of a 2D sample from a per-grain shear-strain field, and the classical predictions of
-its orientation (issue 13, item 3).
+its orientation.
 
 ``detect`` works on the grains' shear ranks (0 least, 1 most sheared), so that the few grains a
 least-squares strain leaves with huge values (rattlers, ill-conditioned neighbourhoods) weigh no

@@ -29,7 +29,7 @@ def kick_drift(x, v, w, q, rot, f, t, inv_mass, inv_inertia, dt, n_owned, with_r
     max_displacement2``, the same bits), measured while x is at hand instead of in a pass of its
     own (its 400 us per step were 4 % of a GRAN step on 2 ranks at n = 60). Without it returns 0.0.
 
-    Blocked as the pair loops (issue 14): per block of ``BLOCK`` rows, a pass updates v, w, x and
+    Blocked as the pair loops: per block of ``BLOCK`` rows, a pass updates v, w, x and
     gathers q and ``w dt``; a pass over the block alone (vectorised) applies
     ``quaternion.rotate_world``'s series branch and the rotation matrix of the result; a last pass
     stores them, or runs ``rotate_world`` itself for the rows whose angle leaves the series'

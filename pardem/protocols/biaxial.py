@@ -1,4 +1,4 @@
-"""2D biaxial compression with rigid granular platens and flexible membranes (issue 13, item 3).
+"""2D biaxial compression with rigid granular platens and flexible membranes.
 
 Protocol, for each confining pressure ``pc`` of ``loading.confining_pressures`` (any number of ranks):
 

@@ -401,7 +401,7 @@ def compile_step_kernels(sim):
     """Compile (or load from Numba's cache) the kernels of a time step, the stability check and
     a sample of ``sim`` by running two steps of a throwaway copy of one of its bonds (its two
     ends, the plates, an empty contact list of the same law), so that the run's timing, and the
-    ``element_steps_per_second`` of the summary, count no compilation (issue 14). Numba compiles
+    ``element_steps_per_second`` of the summary, count no compilation. Numba compiles
     per argument types and compile-time flags, not sizes: the copy has the run's. Local (no
     collective: the copy has no slab layer, whose few kernels still compile in the run); the
     state of ``sim`` is not touched. A few milliseconds once compiled."""

@@ -74,7 +74,7 @@ def check_pressures(pressures, young, key, modulus_keys):
                             f"{fmt(young)} Pa ({modulus_keys}): Hertzian grains would overlap by more than 15 % "
                             f"of their radius; expected a pressure of at most {fmt(limit)} Pa")
 
-MAX_STEPS = 1e10        # a longer run is refused (about a year at 300 steps/s: issue 16)
+MAX_STEPS = 1e10        # a longer run is refused (about a year at 300 steps/s)
 MIN_STRAIN = 1e-12      # positions carry a relative round-off of 1e-16: a strain of 1e-12 keeps 4 digits
 DOUBLE_MIN = sys.float_info.min
 DOUBLE_MAX = sys.float_info.max

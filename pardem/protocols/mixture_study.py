@@ -1,4 +1,4 @@
-"""Mixture study (issue 13, item 2): packings of two grain sizes against the size ratio and the
+"""Mixture study: packings of two grain sizes against the size ratio and the
 concentration of small grains, prepared frictionless under the pressure servo at one pressure.
 
 A case is one (size ratio ``r = R_large / R_small``, concentration of small grains ``c`` by number or

@@ -1,4 +1,4 @@
-"""Point-load response function of a 2D granular packing (issue 13 item 4; driver
+"""Point-load response function of a 2D granular packing (driver
 ``python -m pardem.drivers.response``).
 
 Protocol (any number of ranks; every step is collective):
