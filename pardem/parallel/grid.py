@@ -28,20 +28,9 @@ import itertools
 import numpy as np
 
 from pardem.errors import DecompositionError
+from pardem.parallel.slabs import _from_ordered_int, _ordered_int
 
-_SIGN = np.int64(-(2**63))
 GRID_FIELD = "[parallel] grid (Decomposition.grid)"
-
-
-def _ordered_int(s):
-    """Order-preserving map float64 -> int64 (as ``pardem.parallel.slabs``)."""
-    i = np.ascontiguousarray(s, dtype=np.float64).view(np.int64)
-    return np.where(i >= 0, i, _SIGN - i)
-
-
-def _from_ordered_int(o):
-    o = np.asarray(o, dtype=np.int64)
-    return np.where(o >= 0, o, _SIGN - o).view(np.float64)
 
 
 _TOP = np.uint64(1 << 63)
